@@ -1,0 +1,39 @@
+# Two commands on a fresh Debian 12 machine: `make case` and `make test`.
+# Both install what is missing first (make setup).
+
+PYTHON ?= python3
+CASE ?= cases/square_slip_separation.toml
+SET ?=
+SUDO := $(shell [ "$$(id -u)" -eq 0 ] || echo sudo)
+DEBIAN_PACKAGES := freefem++ libfreefem++ gmsh
+export FF_LOADPATH := /usr/lib/freefem++
+
+.PHONY: setup setup-system setup-python case test clean
+
+setup: setup-system setup-python
+
+# FreeFEM's plugins (msh3, iovtk, gmsh, ...) live in libfreefem++, which the
+# freefem++ package does not pull in: check for a plugin file, not the binary.
+setup-system:
+	@if ! command -v FreeFem++ >/dev/null || ! command -v gmsh >/dev/null \
+	    || [ ! -f /usr/lib/freefem++/iovtk.so ]; then \
+	  echo "installing Debian packages: $(DEBIAN_PACKAGES)"; \
+	  $(SUDO) apt-get update -qq && \
+	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $(DEBIAN_PACKAGES) >/dev/null; \
+	fi
+
+setup-python:
+	@if ! $(PYTHON) -c "import numpy, pandas, matplotlib, meshio, pytest, scipy" 2>/dev/null; then \
+	  echo "installing Python packages from requirements.txt"; \
+	  $(PYTHON) -m pip install -q -r requirements.txt; \
+	fi
+
+# make case [CASE=cases/NAME.toml] [SET="mesh.nx=80 method.theta=1"]
+case: setup
+	$(PYTHON) -m driver run $(CASE) $(if $(strip $(SET)),--set "$(SET)")
+
+test: setup
+	$(PYTHON) -m pytest -q tests
+
+clean:
+	rm -rf runs .pytest_cache

@@ -1,0 +1,65 @@
+"""Command line: python -m driver run SCENE [--set key=value ...]."""
+
+import argparse
+import sys
+
+from driver.errors import DriverError
+
+
+def cmd_run(args):
+    from driver.runner import run_scene
+    from driver.scene import load_scene
+
+    scene, module = load_scene(args.scene, args.set)
+    echo = print if args.verbose else None
+    results, folder, wall = run_scene(scene, module, out_dir=args.out, script=args.script, echo=echo)
+    print(format_summary(scene, module, results, folder, wall))
+    return 0
+
+
+def format_summary(scene, module, results, folder, wall):
+    meth = scene["method"]
+    newton = results["newton"]
+    timings = results.get("timings_cpu_s", {})
+    lines = [
+        f"scene {scene['scene']['name']} ({scene['scene']['script']}, P{meth['degree']}, "
+        f"theta={meth['theta']:g}, gamma0={meth['gamma0']:.4g})",
+        f"mesh: {results['elements']} elements, h_max {results['h_max']:.4g}, {results['dofs']} DOFs",
+        f"newton: {newton['iterations']} iterations, final residual {newton['residual'][-1]:.2e}",
+    ]
+    lines += module.summary_lines(results)
+    phases = ", ".join(f"{k} {v:.2f}" for k, v in timings.items())
+    lines.append(f"time: {wall:.2f} s wall (FreeFEM cpu s: {phases})")
+    outputs = ", ".join(results.get("outputs", {}).values())
+    lines.append(f"outputs: {folder}/results.json" + (f" ({outputs})" if outputs else ""))
+    return "\n".join(lines)
+
+
+def build_parser():
+    parser = argparse.ArgumentParser(prog="python -m driver", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    run = sub.add_parser("run", help="validate a scene, run FreeFEM, print a summary")
+    run.add_argument("scene", help="scene file (TOML), e.g. cases/square_slip_separation.toml")
+    run.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                     help="override a scene value by dotted key, e.g. mesh.nx=80 (repeatable)")
+    run.add_argument("--out", help="run folder (default runs/NAME-TIME-HASH)")
+    run.add_argument("--script", help="use this .edp instead of the scene's script (development)")
+    run.add_argument("-v", "--verbose", action="store_true", help="echo FreeFEM's output")
+    run.set_defaults(func=cmd_run)
+    return parser
+
+
+def main(argv=None):
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    # "--set a=1 b=2" (as make passes SET) means two overrides.
+    if hasattr(args, "set"):
+        args.set = [item for chunk in args.set for item in chunk.split()]
+    try:
+        return args.func(args)
+    except DriverError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130

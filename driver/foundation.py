@@ -1,0 +1,186 @@
+"""Scenes for freefem/contact_foundation_2d.edp: one body, rigid foundation, fitted mesh."""
+
+from pathlib import Path
+
+from driver.errors import SceneError
+from driver.schema import Field, TableList, at_least, open_interval, positive
+
+BOX_LABELS = {"bottom": 1, "right": 2, "top": 3, "left": 4}
+COMPONENT_BITS = {"x": 1, "y": 2, "xy": 3}
+
+SCHEMA = {
+    "geometry": {
+        "kind": Field("str", default="box", choices=("box", "gmsh")),
+        "xmin": Field("float", default=0.0), "xmax": Field("float", default=1.0),
+        "ymin": Field("float", default=0.0), "ymax": Field("float", default=1.0),
+        "geo": Field("str", default="", doc="gmsh .geo file (kind = gmsh), relative to the scene"),
+    },
+    "mesh": {
+        "nx": Field("int", default=32, check=positive, doc="elements per unit length (h = 1/nx)"),
+    },
+    "material": {
+        "E": Field("float", default=None, check=positive),
+        "nu": Field("float", default=None, check=open_interval(-1.0, 0.5)),
+        "lambda": Field("float", default=None),
+        "mu": Field("float", default=None, check=positive),
+        "plane": Field("str", default="strain", choices=("strain", "stress")),
+    },
+    "loads": {
+        "body_force": Field("vector", default=[0.0, 0.0], length=2),
+    },
+    "boundary": TableList({
+        "label": Field("str", doc="bottom/right/top/left for boxes, a physical id for gmsh"),
+        "type": Field("str", choices=("dirichlet", "traction", "contact", "free")),
+        "value": Field("vector", default=[0.0, 0.0], length=2),
+        "components": Field("str", default="xy", choices=tuple(COMPONENT_BITS)),
+    }),
+    "point_constraint": TableList({
+        "point": Field("vector", length=2),
+        "components": Field("str", default="x", choices=tuple(COMPONENT_BITS)),
+    }),
+    "contact": {
+        "foundation_point": Field("vector", default=[0.0, 0.0], length=2),
+        "foundation_normal": Field("vector", default=[0.0, 1.0], length=2),
+    },
+    "method": {
+        "degree": Field("int", default=2, choices=(1, 2)),
+        "theta": Field("float", default=-1.0),
+        "gamma0": Field("float", default=None, check=positive),
+    },
+    "solver": {
+        "newton_tol": Field("float", default=1e-9, check=positive),
+        "newton_max": Field("int", default=30, check=at_least(1)),
+    },
+    "output": {
+        "vtu": Field("bool", default=True),
+        "pressure_csv": Field("bool", default=True),
+    },
+}
+
+
+def lame_to_young(lam, mu):
+    return mu * (3 * lam + 2 * mu) / (lam + mu), lam / (2 * (lam + mu))
+
+
+def check(scene, source):
+    """Cross-field rules the schema cannot express; fills derived values."""
+    mat = scene["material"]
+    if mat["E"] is not None and mat["nu"] is not None:
+        if mat["lambda"] is not None or mat["mu"] is not None:
+            raise SceneError(f"{source}: key 'material': give either E and nu or lambda and mu, not both")
+    elif mat["lambda"] is not None and mat["mu"] is not None:
+        E, nu = lame_to_young(mat["lambda"], mat["mu"])
+        if not -1.0 < nu < 0.5:
+            raise SceneError(f"{source}: key 'material.lambda': gives a Poisson ratio {nu:.4g} outside (-1, 0.5)")
+        mat["E"], mat["nu"] = E, nu
+    else:
+        raise SceneError(f"{source}: key 'material': needs E and nu (or lambda and mu)")
+    if scene["method"]["gamma0"] is None:
+        scene["method"]["gamma0"] = 1.0 / mat["E"]
+    geo = scene["geometry"]
+    if geo["kind"] == "box":
+        if not (geo["xmax"] > geo["xmin"] and geo["ymax"] > geo["ymin"]):
+            raise SceneError(f"{source}: key 'geometry': the box is empty (need xmax > xmin, ymax > ymin)")
+    elif not geo["geo"]:
+        raise SceneError(f"{source}: key 'geometry.geo': required when geometry.kind = 'gmsh'")
+    else:
+        geo_path = (Path(source).parent / geo["geo"]).resolve()
+        if not geo_path.is_file():
+            raise SceneError(f"{source}: key 'geometry.geo': file not found: {geo_path}")
+        geo["geo_path"] = str(geo_path)
+    normal = scene["contact"]["foundation_normal"]
+    if normal[0] ** 2 + normal[1] ** 2 == 0:
+        raise SceneError(f"{source}: key 'contact.foundation_normal': must be non-zero")
+    for n, bc in enumerate(scene["boundary"]):
+        bc["label_id"] = label_id(bc["label"], geo["kind"], f"{source}: key 'boundary.{n}.label'")
+
+
+def label_id(label, kind, where):
+    if kind == "box":
+        if label not in BOX_LABELS:
+            raise SceneError(f"{where}: a box has the sides {', '.join(BOX_LABELS)}, got {label!r}")
+        return BOX_LABELS[label]
+    if not label.isdigit():
+        raise SceneError(f"{where}: a gmsh mesh labels boundaries by physical id (an integer), got {label!r}")
+    return int(label)
+
+
+def freefem_args(scene, mesh_file=""):
+    """Command-line flags of contact_foundation_2d.edp for this scene."""
+    geo, mat, meth = scene["geometry"], scene["material"], scene["method"]
+    args = [f"-Ddegree={meth['degree']}"]
+
+    def put(key, value):
+        args.extend([f"-{key}", repr(value) if isinstance(value, float) else str(value)])
+
+    put("name", scene["scene"]["name"])
+    put("meshfile", mesh_file)
+    for key in ("xmin", "xmax", "ymin", "ymax"):
+        put(key, geo[key])
+    put("nx", scene["mesh"]["nx"])
+    put("E", mat["E"])
+    put("nu", mat["nu"])
+    put("planestress", int(mat["plane"] == "stress"))
+    put("fx", scene["loads"]["body_force"][0])
+    put("fy", scene["loads"]["body_force"][1])
+    put("theta", meth["theta"])
+    put("gamma0", meth["gamma0"])
+    fp, fn = scene["contact"]["foundation_point"], scene["contact"]["foundation_normal"]
+    put("foundation_px", fp[0])
+    put("foundation_py", fp[1])
+    put("foundation_nx", fn[0])
+    put("foundation_ny", fn[1])
+    by_type = {t: [bc for bc in scene["boundary"] if bc["type"] == t]
+               for t in ("dirichlet", "traction", "contact")}
+    put("ndirichlet", len(by_type["dirichlet"]))
+    for i, bc in enumerate(by_type["dirichlet"]):
+        put(f"dirichlet{i}_label", bc["label_id"])
+        put(f"dirichlet{i}_fix", COMPONENT_BITS[bc["components"]])
+        put(f"dirichlet{i}_ux", bc["value"][0])
+        put(f"dirichlet{i}_uy", bc["value"][1])
+    put("ntraction", len(by_type["traction"]))
+    for i, bc in enumerate(by_type["traction"]):
+        put(f"traction{i}_label", bc["label_id"])
+        put(f"traction{i}_tx", bc["value"][0])
+        put(f"traction{i}_ty", bc["value"][1])
+    put("ncontact", len(by_type["contact"]))
+    for i, bc in enumerate(by_type["contact"]):
+        put(f"contact{i}_label", bc["label_id"])
+    put("npoint", len(scene["point_constraint"]))
+    for i, pc in enumerate(scene["point_constraint"]):
+        put(f"point{i}_x", pc["point"][0])
+        put(f"point{i}_y", pc["point"][1])
+        put(f"point{i}_fix", COMPONENT_BITS[pc["components"]])
+    put("newton_tol", scene["solver"]["newton_tol"])
+    put("newton_max", scene["solver"]["newton_max"])
+    put("vtu", int(scene["output"]["vtu"]))
+    put("csv", int(scene["output"]["pressure_csv"]))
+    return args
+
+
+def prepare_mesh(scene, workdir, run_command):
+    """Mesh files the script needs (gmsh scenes): returns the -meshfile value."""
+    geo = scene["geometry"]
+    if geo["kind"] != "gmsh":
+        return ""
+    msh = Path(workdir) / "mesh.msh"
+    run_command(["gmsh", "-2", "-format", "msh22", "-clmax", repr(1.0 / scene["mesh"]["nx"]),
+                 "-v", "2", geo["geo_path"], "-o", str(msh)], "gmsh")
+    return str(msh)
+
+
+def summary_lines(results):
+    contact = results.get("contact", {})
+    box = contact.get("active_box", [])
+    lines = []
+    if box and box[0] <= box[2]:
+        lines.append(
+            f"contact zone: active length {contact['active_length']:.4g}, "
+            f"x in [{box[0]:.4g}, {box[2]:.4g}], y in [{box[1]:.4g}, {box[3]:.4g}]")
+    else:
+        lines.append("contact zone: empty (no active contact point)")
+    force = contact.get("force_on_body", [0, 0])
+    lines.append(f"contact force on body: ({force[0]:.6g}, {force[1]:.6g}), "
+                 f"max pressure {contact.get('max_pressure', 0):.6g}, "
+                 f"max penetration {contact.get('max_penetration', 0):.3g}")
+    return lines

@@ -1,0 +1,89 @@
+"""Scene files: TOML loading, --set overrides by dotted key, validation, dispatch.
+
+A scene names the FreeFEM script that solves it (scene.script); each script has
+a module here with its schema and its mapping to FreeFEM command-line flags.
+"""
+
+import copy
+import tomllib
+from pathlib import Path
+
+from driver.errors import SceneError
+from driver.schema import Field, validate
+
+SCENE_HEADER = {
+    "name": Field("str", doc="scene name, used for run folders"),
+    "script": Field("str", doc="FreeFEM top-level script (without .edp)"),
+    "description": Field("str", default=""),
+}
+
+
+def script_modules():
+    # Imported here so that each script module can import this one.
+    from driver import foundation
+
+    return {"contact_foundation_2d": foundation}
+
+
+def parse_override(text):
+    """'a.b=value' -> (['a', 'b'], value) with value read as a TOML literal."""
+    if "=" not in text:
+        raise SceneError(f"override '{text}': expected KEY=VALUE")
+    key, raw = text.split("=", 1)
+    key = key.strip()
+    if not key:
+        raise SceneError(f"override '{text}': empty key")
+    try:
+        value = tomllib.loads(f"v = {raw.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw.strip()          # bare words are strings: method.stabilization=ghost
+    return key.split("."), value
+
+
+def apply_override(data, path, value, source):
+    node = data
+    for i, part in enumerate(path[:-1]):
+        if isinstance(node, list):
+            if not part.isdigit() or int(part) >= len(node):
+                raise SceneError(f"{source}: override '{'.'.join(path)}': no item {part}")
+            node = node[int(part)]
+            continue
+        node = node.setdefault(part, {})
+        if not isinstance(node, (dict, list)):
+            raise SceneError(f"{source}: override '{'.'.join(path)}': '{part}' is not a table")
+    last = path[-1]
+    if isinstance(node, list):
+        if not last.isdigit() or int(last) >= len(node):
+            raise SceneError(f"{source}: override '{'.'.join(path)}': no item {last}")
+        node[int(last)] = value
+    else:
+        node[last] = value
+
+
+def load_scene(path, overrides=()):
+    """Read, override and validate a scene; return (scene dict, script module)."""
+    path = Path(path)
+    source = str(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise SceneError(f"{source}: cannot read scene file ({exc.strerror})") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{source}: malformed TOML: {exc}") from None
+    data = copy.deepcopy(data)
+    for text_override in overrides:
+        keys, value = parse_override(text_override)
+        apply_override(data, keys, value, source)
+    header = validate(data.get("scene", {}), SCENE_HEADER, source, "scene.")
+    modules = script_modules()
+    if header["script"] not in modules:
+        known = ", ".join(sorted(modules))
+        raise SceneError(f"{source}: key 'scene.script': unknown script {header['script']!r} (known: {known})")
+    module = modules[header["script"]]
+    schema = dict(module.SCHEMA, scene=SCENE_HEADER)
+    scene = validate(data, schema, source)
+    module.check(scene, source)
+    scene["_source"] = source
+    return scene, module

@@ -1,0 +1,111 @@
+"""A small declarative schema for scene files: types, ranges, defaults.
+
+Every problem is reported as one SceneError naming the file and the dotted key.
+"""
+
+import math
+
+from driver.errors import SceneError
+
+REQUIRED = object()
+
+
+class Field:
+    """One scalar or vector entry of a scene table."""
+
+    def __init__(self, kind, default=REQUIRED, check=None, choices=None, length=None, doc=""):
+        self.kind = kind            # "float", "int", "str", "bool", "vector"
+        self.default = default
+        self.check = check          # callable(value) -> error text or None
+        self.choices = choices
+        self.length = length        # for vectors
+        self.doc = doc
+
+    def coerce(self, value, where):
+        kind = self.kind
+        if kind == "float":
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise SceneError(f"{where}: expected a number, got {type_name(value)} {value!r}")
+            value = float(value)
+            if not math.isfinite(value):
+                raise SceneError(f"{where}: must be finite, got {value!r}")
+        elif kind == "int":
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise SceneError(f"{where}: expected an integer, got {type_name(value)} {value!r}")
+        elif kind == "str":
+            if not isinstance(value, str):
+                raise SceneError(f"{where}: expected a string, got {type_name(value)} {value!r}")
+        elif kind == "bool":
+            if not isinstance(value, bool):
+                raise SceneError(f"{where}: expected true or false, got {type_name(value)} {value!r}")
+        elif kind == "vector":
+            if not isinstance(value, list) or any(
+                isinstance(v, bool) or not isinstance(v, (int, float)) for v in value
+            ):
+                raise SceneError(f"{where}: expected a list of numbers, got {value!r}")
+            if self.length is not None and len(value) != self.length:
+                raise SceneError(f"{where}: expected {self.length} numbers, got {len(value)}")
+            value = [float(v) for v in value]
+            if not all(math.isfinite(v) for v in value):
+                raise SceneError(f"{where}: numbers must be finite, got {value!r}")
+        if self.choices is not None and value not in self.choices:
+            options = ", ".join(repr(c) for c in self.choices)
+            raise SceneError(f"{where}: must be one of {options}, got {value!r}")
+        if self.check is not None:
+            problem = self.check(value)
+            if problem:
+                raise SceneError(f"{where}: {problem}, got {value!r}")
+        return value
+
+
+class TableList:
+    """An array of tables ([[name]] in TOML), each validated against a schema."""
+
+    def __init__(self, schema, default=()):
+        self.schema = schema
+        self.default = list(default)
+
+
+def type_name(value):
+    return {bool: "boolean", int: "integer", float: "number", str: "string",
+            list: "list", dict: "table"}.get(type(value), type(value).__name__)
+
+
+def positive(value):
+    return None if value > 0 else "must be > 0"
+
+
+def at_least(bound):
+    return lambda value: None if value >= bound else f"must be >= {bound}"
+
+
+def open_interval(lo, hi):
+    return lambda value: None if lo < value < hi else f"must lie in ({lo}, {hi})"
+
+
+def validate(data, schema, source, prefix=""):
+    """Return a new dict with defaults filled in; raise SceneError on any problem."""
+    if not isinstance(data, dict):
+        raise SceneError(f"{source}: key '{prefix.rstrip('.')}': expected a table, got {type_name(data)}")
+    out = {}
+    for key in data:
+        if key not in schema:
+            known = ", ".join(sorted(schema))
+            raise SceneError(f"{source}: unknown key '{prefix}{key}' (known here: {known})")
+    for key, spec in schema.items():
+        where = f"{source}: key '{prefix}{key}'"
+        if isinstance(spec, dict):
+            out[key] = validate(data.get(key, {}), spec, source, f"{prefix}{key}.")
+        elif isinstance(spec, TableList):
+            items = data.get(key, spec.default)
+            if not isinstance(items, list) or not all(isinstance(i, dict) for i in items):
+                raise SceneError(f"{where}: expected an array of tables ([[{key}]])")
+            out[key] = [validate(item, spec.schema, source, f"{prefix}{key}.{n}.")
+                        for n, item in enumerate(items)]
+        elif key in data:
+            out[key] = spec.coerce(data[key], where)
+        elif spec.default is REQUIRED:
+            raise SceneError(f"{where}: required but missing")
+        else:
+            out[key] = spec.default
+    return out
