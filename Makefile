@@ -37,3 +37,8 @@ test: setup
 
 clean:
 	rm -rf runs .pytest_cache
+
+# Tables and figures quoted in the README (one target per study).
+.PHONY: foundation-study
+foundation-study: setup
+	$(PYTHON) -m driver study foundation-newton square-pressure

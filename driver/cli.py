@@ -1,6 +1,7 @@
 """Command line: python -m driver run SCENE [--set key=value ...]."""
 
 import argparse
+import re
 import sys
 
 from driver.errors import DriverError
@@ -35,6 +36,14 @@ def format_summary(scene, module, results, folder, wall):
     return "\n".join(lines)
 
 
+def cmd_study(args):
+    from driver.studies import STUDIES
+
+    for name in args.names:
+        STUDIES[name]()
+    return 0
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog="python -m driver", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -46,15 +55,22 @@ def build_parser():
     run.add_argument("--script", help="use this .edp instead of the scene's script (development)")
     run.add_argument("-v", "--verbose", action="store_true", help="echo FreeFEM's output")
     run.set_defaults(func=cmd_run)
+    from driver.studies import STUDIES
+
+    study = sub.add_parser("study", help="run a study: tables in results/, plots in plots/")
+    study.add_argument("names", nargs="+", choices=sorted(STUDIES))
+    study.set_defaults(func=cmd_study)
     return parser
 
 
 def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
-    # "--set a=1 b=2" (as make passes SET) means two overrides.
+    # "--set 'a=1 b=[0, 2]'" (as make passes SET) means two overrides: split at
+    # white space that starts a new KEY=, not inside values.
     if hasattr(args, "set"):
-        args.set = [item for chunk in args.set for item in chunk.split()]
+        args.set = [item for chunk in args.set
+                    for item in re.split(r"\s+(?=[A-Za-z_][\w.]*=)", chunk.strip()) if item]
     try:
         return args.func(args)
     except DriverError as exc:

@@ -1,0 +1,54 @@
+"""Helpers: run the driver the way a user does and read what FreeFEM wrote."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import meshio
+import numpy as np
+import pandas as pd
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def run_cli(*args, cwd=REPO):
+    """python -m driver ARGS; returns the CompletedProcess (never raises)."""
+    return subprocess.run([sys.executable, "-m", "driver", *args], cwd=cwd,
+                          capture_output=True, text=True)
+
+
+class Run:
+    def __init__(self, folder):
+        self.folder = Path(folder)
+        self.results = json.loads((self.folder / "results.json").read_text())
+
+    def points_and_displacement(self):
+        vtu = meshio.read(self.folder / "fields.vtu")
+        # iovtk writes coordinates as Float32 whatever floatmesh says; fields are Float64.
+        return vtu.points[:, :2].astype(float), vtu.point_data["displacement"][:, :2]
+
+    def contact_samples(self):
+        return pd.read_csv(self.folder / "contact_pressure.csv")
+
+
+@pytest.fixture
+def run_scene(tmp_path):
+    """run_scene(case, 'key=value', ...) -> Run, failing the test with the driver's message."""
+    counter = iter(range(1000))
+
+    def _run(case, *overrides):
+        out = tmp_path / f"run{next(counter)}"
+        args = ["run", str(REPO / case), "--out", str(out)]
+        for item in overrides:
+            args += ["--set", item]
+        proc = run_cli(*args)
+        assert proc.returncode == 0, f"driver failed ({proc.returncode}):\n{proc.stderr}\n{proc.stdout}"
+        return Run(out)
+
+    return _run
+
+
+def relative_max_error(values, exact):
+    return float(np.abs(values - exact).max() / np.abs(exact).max())
