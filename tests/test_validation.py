@@ -67,7 +67,7 @@ def test_freefem_script_error_is_reported(tmp_path):
     broken = tmp_path / "broken.edp"
     source = (REPO / "freefem" / "contact_foundation_2d.edp").read_text()
     # A real script error: an undefined name, the kind a user's edit introduces.
-    broken.write_text(source.replace("matrix A = vBulk(Vh, Vh);", "matrix A = vBulkTypo(Vh, Vh);"))
+    broken.write_text(source + "\nreal brokenValue = vBulkTypo + 1;\n")
     for module in (REPO / "freefem" / "lib").iterdir():   # keep the includes resolvable
         (tmp_path / "lib").mkdir(exist_ok=True)
         shutil.copy(module, tmp_path / "lib" / module.name)
