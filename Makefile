@@ -42,3 +42,10 @@ clean:
 .PHONY: foundation-study
 foundation-study: setup
 	$(PYTHON) -m driver study foundation-newton square-pressure
+
+# Residual estimators on the square: uniform ladder (slides' table), adaptive loop,
+# adapted mesh figure. The reference (adaptive P2, ~1e6 DOFs) is computed once
+# into runs/reference/square_p2.
+.PHONY: aposteriori-study
+aposteriori-study: setup
+	$(PYTHON) -m driver study aposteriori-uniform aposteriori-adaptive square-adapted

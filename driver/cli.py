@@ -12,10 +12,18 @@ def cmd_run(args):
     from driver.scene import load_scene
 
     scene, module = load_scene(args.scene, args.set)
-    echo = print if args.verbose else None
+    echo = progress_echo(args.verbose)
     results, folder, wall = run_scene(scene, module, out_dir=args.out, script=args.script, echo=echo)
     print(format_summary(scene, module, results, folder, wall))
     return 0
+
+
+def progress_echo(verbose):
+    """All of FreeFEM's output with -v; otherwise only adaptation steps (long runs)."""
+    def echo(line):
+        if verbose or line.startswith("step "):
+            print(line if verbose else f"  {line}", file=sys.stdout if verbose else sys.stderr, flush=True)
+    return echo
 
 
 def format_summary(scene, module, results, folder, wall):

@@ -51,9 +51,21 @@ SCHEMA = {
         "newton_tol": Field("float", default=1e-9, check=positive),
         "newton_max": Field("int", default=30, check=at_least(1)),
     },
+    "adapt": {
+        "steps": Field("int", default=0, check=at_least(0), doc="adaptmesh steps after the first solve"),
+        "growth": Field("float", default=2.0, check=positive, doc="wanted element-count growth per step"),
+        "max_dofs": Field("int", default=200000, check=positive, doc="stop once a solve has this many DOFs"),
+        "eta_target": Field("float", default=0.0, check=at_least(0.0), doc="stop once eta <= this"),
+        "max_refine": Field("float", default=4.0, check=at_least(1.0)),
+        "max_coarsen": Field("float", default=2.0, check=at_least(1.0)),
+    },
+    "reference": {
+        "folder": Field("str", default="", doc="a run saved with output.save_solution (P2): errors against it"),
+    },
     "output": {
         "vtu": Field("bool", default=True),
         "pressure_csv": Field("bool", default=True),
+        "save_solution": Field("bool", default=False, doc="write mesh.msh and u.txt (a reference)"),
     },
 }
 
@@ -88,6 +100,14 @@ def check(scene, source):
         if not geo_path.is_file():
             raise SceneError(f"{source}: key 'geometry.geo': file not found: {geo_path}")
         geo["geo_path"] = str(geo_path)
+    folder = scene["reference"]["folder"]
+    if folder:
+        path = Path(folder)
+        if not path.is_absolute():
+            path = (Path.cwd() / path)
+        if not (path / "u.txt").is_file() or not (path / "mesh.msh").is_file():
+            raise SceneError(f"{source}: key 'reference.folder': no saved solution (mesh.msh, u.txt) in {path}")
+        scene["reference"]["folder"] = str(path.resolve())
     normal = scene["contact"]["foundation_normal"]
     if normal[0] ** 2 + normal[1] ** 2 == 0:
         raise SceneError(f"{source}: key 'contact.foundation_normal': must be non-zero")
@@ -153,6 +173,16 @@ def freefem_args(scene, mesh_file=""):
         put(f"point{i}_fix", COMPONENT_BITS[pc["components"]])
     put("newton_tol", scene["solver"]["newton_tol"])
     put("newton_max", scene["solver"]["newton_max"])
+    adapt = scene["adapt"]
+    put("adapt_steps", adapt["steps"])
+    put("adapt_growth", adapt["growth"])
+    put("adapt_max_dofs", adapt["max_dofs"])
+    put("adapt_eta_target", adapt["eta_target"])
+    put("adapt_max_refine", adapt["max_refine"])
+    put("adapt_max_coarsen", adapt["max_coarsen"])
+    if scene["reference"]["folder"]:
+        put("reference", scene["reference"]["folder"])
+    put("save", int(scene["output"]["save_solution"]))
     put("vtu", int(scene["output"]["vtu"]))
     put("csv", int(scene["output"]["pressure_csv"]))
     return args
@@ -179,6 +209,18 @@ def summary_lines(results):
             f"x in [{box[0]:.4g}, {box[2]:.4g}], y in [{box[1]:.4g}, {box[3]:.4g}]")
     else:
         lines.append("contact zone: empty (no active contact point)")
+    est = results.get("estimator")
+    if est:
+        lines.append("estimator: eta {eta:.4g} (eta1 {eta1:.3g}, eta2 {eta2:.3g}, eta3 {eta3:.3g}, "
+                     "eta4 {eta4:.3g}), zeta {zeta:.3g}".format(**est))
+    steps = results.get("steps", {})
+    if len(steps.get("dofs", [])) > 1:
+        lines.append(f"adaptation: {len(steps['dofs'])} solves, DOFs {int(steps['dofs'][0])} -> "
+                     f"{int(steps['dofs'][-1])}, eta {steps['eta'][0]:.4g} -> {steps['eta'][-1]:.4g}")
+    if "reference" in results:
+        ref = results["reference"]
+        lines.append(f"error vs reference: L2 {steps['l2_error'][-1] / ref['l2_norm']:.3e}, "
+                     f"H1 {steps['h1_error'][-1] / ref['h1_norm']:.3e} (relative)")
     force = contact.get("force_on_body", [0, 0])
     lines.append(f"contact force on body: ({force[0]:.6g}, {force[1]:.6g}), "
                  f"max pressure {contact.get('max_pressure', 0):.6g}, "

@@ -93,10 +93,13 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
         raise
     # -Dmacro flags must follow the script name; everything else is -key value.
     command = [binary, "-nw", "-v", "0", str(script)] + args + ["-outdir", str(staging)]
+    # FreeFEM's output is block-buffered on a pipe: line-buffer it for progress.
+    stdbuf = shutil.which("stdbuf")
+    launch = [stdbuf, "-oL", "-eL"] + command if stdbuf else command
     (staging / "command.txt").write_text(" ".join(command) + "\n")
     start = time.perf_counter()
     with open(staging / "freefem.log", "w") as log:
-        proc = subprocess.Popen(command, cwd=REPO, env=freefem_env(), stdout=subprocess.PIPE,
+        proc = subprocess.Popen(launch, cwd=REPO, env=freefem_env(), stdout=subprocess.PIPE,
                                 stderr=subprocess.STDOUT, text=True)
         for line in proc.stdout:
             log.write(line)

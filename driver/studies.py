@@ -110,3 +110,217 @@ STUDIES = {
     "foundation-newton": foundation_newton_table,
     "square-pressure": square_pressure_plot,
 }
+
+
+# ---------------------------------------------------------------------------
+# A posteriori estimators on the square (body-fitted), uniform and adaptive.
+
+SQUARE = REPO / "cases" / "square_slip_separation.toml"
+SQUARE_REFERENCE = REPO / "runs" / "reference" / "square_p2"
+SQUARE_REFERENCE_SETTINGS = ["mesh.nx=16", "adapt.steps=30", "adapt.growth=2.5",
+                             "adapt.max_dofs=1000000", "output.save_solution=true",
+                             "output.vtu=false", "output.pressure_csv=false"]
+UNIFORM_NX = (8, 16, 32, 64, 80)
+
+
+def square_reference():
+    """Adaptive P2, theta = -1, about 1e6 DOFs; made once and kept in runs/reference/."""
+    if (SQUARE_REFERENCE / "u.txt").is_file():
+        return SQUARE_REFERENCE
+    print(f"computing the square reference in {SQUARE_REFERENCE} (adaptive P2, ~1e6 DOFs)",
+          file=sys.stderr, flush=True)
+    scene, module = load_scene(SQUARE, SQUARE_REFERENCE_SETTINGS)
+    run_scene(scene, module, out_dir=SQUARE_REFERENCE)
+    return SQUARE_REFERENCE
+
+
+def estimator_rows(results, **labels):
+    """One row per solve of a run (several with adaptation) with errors and estimators."""
+    steps, ref, E = results["steps"], results["reference"], results["E"]
+    rows = []
+    for i in range(len(steps["dofs"])):
+        h1 = steps["h1_error"][i]
+        rows.append(dict(labels, step=i, dofs=int(steps["dofs"][i]), elements=int(steps["elements"][i]),
+                         l2_error=steps["l2_error"][i], h1_error=h1,
+                         l2_rel=steps["l2_error"][i] / ref["l2_norm"], h1_rel=h1 / ref["h1_norm"],
+                         eta=steps["eta"][i], eta1=steps["eta1"][i], eta2=steps["eta2"][i],
+                         eta3=steps["eta3"][i], eta4=steps["eta4"][i], zeta=steps["zeta"][i],
+                         efficiency=steps["eta"][i] / (E * h1),
+                         newton_iterations=int(steps["newton_iterations"][i]),
+                         cpu_s=steps["cpu_s"][i]))
+    return rows
+
+
+def loglog_slope(x, y):
+    import numpy as np
+
+    x, y = np.log(np.asarray(x, float)), np.log(np.asarray(y, float))
+    return float(np.polyfit(x, y, 1)[0])
+
+
+def aposteriori_uniform():
+    """The slides' table on the square: uniform h = 1/8 ... 1/80, P2, theta = -1, 0, 1."""
+    reference = square_reference()
+    variants = [(-1, None), (0, None), (1, None), (1, 1e-7)]   # gamma0 = 1/E unless given
+    rows, n = [], len(variants) * len(UNIFORM_NX)
+    for theta, gamma0 in variants:
+        for nx in UNIFORM_NX:
+            overrides = [f"method.theta={theta}", f"mesh.nx={nx}", f"reference.folder='{reference}'",
+                         "output.vtu=false"]
+            if gamma0:
+                overrides.append(f"method.gamma0={gamma0}")
+            progress(len(rows) + 1, n, " ".join(overrides[:2] + overrides[4:]))
+            row, results, _ = run_point(SQUARE, overrides)
+            labels = dict(theta=theta, gamma0=gamma0 or 1e-6, nx=nx, h=1.0 / nx)
+            if results is None:
+                rows.append(dict(labels, status=row["status"], message=row["message"]))
+                continue
+            rows += [dict(r, status="converged", wall_s=row["wall_s"])
+                     for r in estimator_rows(results, **labels)]
+    table = pd.DataFrame(rows)
+    RESULTS_DIR.mkdir(exist_ok=True)
+    table.to_csv(RESULTS_DIR / "aposteriori_uniform.csv", index=False)
+    slopes = []
+    for (theta, gamma0), group in table[table.status == "converged"].groupby(["theta", "gamma0"]):
+        if len(group) < 2:
+            continue
+        slope = {k: -loglog_slope(group.h, group[k])
+                 for k in ("l2_error", "h1_error", "eta1", "eta2", "eta3", "eta4", "eta")}
+        slopes.append(dict(theta=theta, gamma0=gamma0, runs=len(group), **slope,
+                           efficiency_min=group.efficiency.min(), efficiency_max=group.efficiency.max(),
+                           efficiency_mean=group.efficiency.mean()))
+    slopes = pd.DataFrame(slopes)
+    slopes.to_csv(RESULTS_DIR / "aposteriori_uniform_slopes.csv", index=False)
+    print(markdown_table(table[["theta", "gamma0", "nx", "dofs", "l2_error", "h1_error", "eta1",
+                                "eta2", "eta3", "eta4", "eta", "efficiency", "status"]]))
+    print(markdown_table(slopes, digits=3))
+    plot_aposteriori_uniform(table)
+    return table
+
+
+def plot_aposteriori_uniform(table):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ok = table[table.status == "converged"]
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4.2), sharex=True)
+    for ax, (key, label) in zip(axes, [("eta", "estimator eta"), ("h1_error", "H1 error"),
+                                       ("l2_error", "L2 error")]):
+        for (theta, gamma0), group in ok.groupby(["theta", "gamma0"]):
+            slope = -2 * loglog_slope(group.dofs, group[key])
+            ax.loglog(group.dofs, group[key], "o-",
+                      label=f"theta={theta:g}, gamma0={gamma0:g}: slope {slope:.2f} (h)")
+        ax.set_title(label)
+        ax.set_xlabel("DOFs")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.suptitle("square with slip and separation, uniform P2 meshes h = 1/8 ... 1/80 "
+                 "(make aposteriori-study)")
+    fig.tight_layout()
+    PLOTS_DIR.mkdir(exist_ok=True)
+    fig.savefig(PLOTS_DIR / "aposteriori_convergence.png", dpi=110)
+    print(f"wrote {PLOTS_DIR / 'aposteriori_convergence.png'}")
+
+
+def aposteriori_adaptive():
+    """Adaptive P2 loop on the square against the uniform ladder (theta = -1)."""
+    import numpy as np
+
+    reference = square_reference()
+    uniform_path = RESULTS_DIR / "aposteriori_uniform.csv"
+    if not uniform_path.is_file():
+        raise DriverError(f"{uniform_path} is missing: run the uniform study first (make aposteriori-study)")
+    uniform = pd.read_csv(uniform_path)
+    uniform = uniform[(uniform.status == "converged") & (uniform.theta == -1)].sort_values("dofs")
+    overrides = ["mesh.nx=8", "adapt.steps=14", "adapt.growth=2.0", "adapt.max_dofs=120000",
+                 f"reference.folder='{reference}'"]
+    progress(1, 1, " ".join(overrides))
+    row, results, folder = run_point(SQUARE, overrides)
+    if results is None:
+        raise DriverError(f"adaptive run failed: {row['message']}")
+    table = pd.DataFrame(estimator_rows(results, theta=-1, gamma0=1e-6))
+    table.to_csv(RESULTS_DIR / "aposteriori_adaptive.csv", index=False)
+    finest = uniform.iloc[-1]
+    reached = table[table.h1_error <= finest.h1_error]
+    half = table.iloc[len(table) // 2:]
+    summary = dict(
+        uniform_h_1_80_dofs=int(finest.dofs), uniform_h_1_80_h1_error=finest.h1_error,
+        adaptive_dofs_reaching_it=int(reached.dofs.iloc[0]) if len(reached) else None,
+        adaptive_h1_slope_vs_dofs=loglog_slope(half.dofs, half.h1_error),
+        adaptive_eta_slope_vs_dofs=loglog_slope(half.dofs, half.eta),
+        efficiency_mean=table.efficiency.mean(), efficiency_min=table.efficiency.min(),
+        efficiency_max=table.efficiency.max())
+    pd.DataFrame([summary]).to_csv(RESULTS_DIR / "aposteriori_adaptive_summary.csv", index=False)
+    print(markdown_table(table[["step", "dofs", "h1_error", "l2_error", "eta", "efficiency",
+                                "newton_iterations"]]))
+    print(markdown_table(pd.DataFrame([summary]), digits=3))
+
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    E = results["E"]
+    for data, name, style in ((uniform, "uniform", "s--"), (table, "adaptive", "o-")):
+        ax.loglog(data.dofs, data.eta / E, style, label=f"eta / E, {name}")
+        ax.loglog(data.dofs, data.h1_error, style, label=f"H1 error, {name}")
+    ref_n = np.array([table.dofs.min(), table.dofs.max()], float)
+    ax.loglog(ref_n, table.h1_error.iloc[0] * (ref_n / ref_n[0]) ** -1.0, "k:", label="DOFs^-1")
+    ax.set_xlabel("DOFs")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title("P2, theta = -1: estimator and true error")
+    ax2.semilogx(table.dofs, table.efficiency, "o-", label="adaptive")
+    ax2.semilogx(uniform.dofs, uniform.efficiency, "s--", label="uniform")
+    ax2.axhline(table.efficiency.mean(), color="gray", lw=0.8)
+    ax2.set_ylim(0, 2.2 * max(table.efficiency.max(), uniform.efficiency.max()))
+    ax2.set_xlabel("DOFs")
+    ax2.set_title("efficiency index eta / (E |u - u_h|_1)")
+    ax2.legend()
+    ax2.grid(True, which="both", alpha=0.3)
+    fig.suptitle("square with slip and separation: adaptive vs uniform (make aposteriori-study)")
+    fig.tight_layout()
+    fig.savefig(PLOTS_DIR / "aposteriori_adaptive.png", dpi=110)
+    print(f"wrote {PLOTS_DIR / 'aposteriori_adaptive.png'}")
+    return table
+
+
+def square_adapted_vonmises():
+    """The slides' figure: adapted mesh and von Mises stress side by side."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import matplotlib.tri as mtri
+    import meshio
+
+    overrides = ["mesh.nx=8", "adapt.steps=7", "adapt.growth=2.0"]
+    progress(1, 1, " ".join(overrides))
+    row, results, folder = run_point(SQUARE, overrides)
+    if results is None:
+        raise DriverError(f"adaptive run failed: {row['message']}")
+    vtu = meshio.read(Path(folder) / "fields.vtu")
+    tri = mtri.Triangulation(vtu.points[:, 0], vtu.points[:, 1], vtu.cells_dict["triangle"])
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 5))
+    ax.triplot(tri, lw=0.3, color="k")
+    samples = pd.read_csv(Path(folder) / "contact_pressure.csv")
+    active = samples[samples.active == 1]
+    ax.plot(active.x, active.y, "r.", ms=3, label="active contact")
+    ax.set_title(f"adapted mesh ({results['elements']} triangles, {results['dofs']} DOFs)")
+    ax.set_aspect("equal")
+    ax.legend(loc="upper right", fontsize=8)
+    shade = ax2.tripcolor(tri, vtu.point_data["von_mises"].ravel(), shading="gouraud", cmap="viridis")
+    fig.colorbar(shade, ax=ax2, label="von Mises stress")
+    ax2.set_aspect("equal")
+    ax2.set_title("von Mises stress (P2, theta = -1, gamma0 = 1/E)")
+    fig.suptitle("square with slip and separation after 7 adaptation steps (make aposteriori-study)")
+    fig.tight_layout()
+    fig.savefig(PLOTS_DIR / "square_adapted_vonmises.png", dpi=110)
+    print(f"wrote {PLOTS_DIR / 'square_adapted_vonmises.png'}")
+
+
+STUDIES.update({
+    "aposteriori-uniform": aposteriori_uniform,
+    "aposteriori-adaptive": aposteriori_adaptive,
+    "square-adapted": square_adapted_vonmises,
+})
