@@ -54,7 +54,8 @@ SCHEMA = {
     "adapt": {
         "steps": Field("int", default=0, check=at_least(0), doc="adaptmesh steps after the first solve"),
         "growth": Field("float", default=2.0, check=positive, doc="wanted element-count growth per step"),
-        "max_dofs": Field("int", default=200000, check=positive, doc="stop once a solve has this many DOFs"),
+        "max_dofs": Field("int", default=200000, check=positive,
+                          doc="DOF budget: no adaptation step whose mesh would exceed it (growth x DOFs)"),
         "eta_target": Field("float", default=0.0, check=at_least(0.0), doc="stop once eta <= this"),
         "max_refine": Field("float", default=4.0, check=at_least(1.0)),
         "max_coarsen": Field("float", default=2.0, check=at_least(1.0)),

@@ -118,7 +118,7 @@ STUDIES = {
 SQUARE = REPO / "cases" / "square_slip_separation.toml"
 SQUARE_REFERENCE = REPO / "runs" / "reference" / "square_p2"
 SQUARE_REFERENCE_SETTINGS = ["mesh.nx=16", "adapt.steps=30", "adapt.growth=2.5",
-                             "adapt.max_dofs=1000000", "output.save_solution=true",
+                             "adapt.max_dofs=1500000", "output.save_solution=true",
                              "output.vtu=false", "output.pressure_csv=false"]
 UNIFORM_NX = (8, 16, 32, 64, 80)
 
