@@ -2,7 +2,7 @@
 # Both install what is missing first (make setup).
 
 PYTHON ?= python3
-CASE ?= cases/square_slip_separation.toml
+CASE ?= cases/disk_on_slab.toml
 SET ?=
 SUDO := $(shell [ "$$(id -u)" -eq 0 ] || echo sudo)
 DEBIAN_PACKAGES := freefem++ libfreefem++ gmsh

@@ -1,0 +1,185 @@
+"""Scenes for freefem/fd_contact_2d.edp: two bodies on one background mesh (fictitious domain).
+
+Body 1 is a disk, body 2 a slab {y < top} of the box, held either strongly on the
+box bottom or, with `bottom_line = [a, b]`, by Nitsche-Dirichlet on the line
+y = a + b x that cuts the mesh.
+"""
+
+from driver.errors import SceneError
+from driver.schema import Field, at_least, open_interval, positive
+
+STABILIZATIONS = ("none", "neighbour", "ghost")
+
+
+def body_schema(shape_fields, force):
+    return dict(shape_fields, **{
+        "lambda": Field("float", default=None),
+        "mu": Field("float", default=None, check=positive),
+        "E": Field("float", default=None, check=positive),
+        "nu": Field("float", default=None, check=open_interval(-1.0, 0.5)),
+        "body_force": Field("vector", default=force, length=2),
+    })
+
+
+SCHEMA = {
+    "geometry": {
+        "xmin": Field("float", default=-0.5), "xmax": Field("float", default=0.5),
+        "ymin": Field("float", default=-0.5), "ymax": Field("float", default=0.5),
+    },
+    "mesh": {
+        "nx": Field("int", default=80, check=at_least(2), doc="elements per side of the box (h = width/nx)"),
+    },
+    "body1": body_schema({
+        "shape": Field("str", default="disk", choices=("disk",)),
+        "centre": Field("vector", default=[0.0, 0.0], length=2),
+        "radius": Field("float", default=0.25, check=positive),
+    }, [0.0, -0.1]),
+    "body2": body_schema({
+        "shape": Field("str", default="slab", choices=("slab",)),
+        "top": Field("float", default=-0.25),
+        "bottom_line": Field("vector", default=[], doc="[a, b]: Nitsche-Dirichlet u = 0 on y = a + b x"),
+    }, [0.0, 0.0]),
+    "rigid": {
+        "mass_eps": Field("float", default=1e-7, check=at_least(0.0),
+                          doc="mass term eps int u1.v1 against the floating disk's rigid motions"),
+        "fix_x_points": Field("vector", default=[0.0, 0.0, 0.0, 0.1], length=4,
+                              doc="u1_x = 0 at the nodes nearest to these two points (x1, y1, x2, y2)"),
+    },
+    "method": {
+        "degree": Field("int", default=2, choices=(1, 2)),
+        "theta": Field("float", default=-1.0),
+        "gamma0": Field("float", default=1.0 / 200.0, check=positive),
+        "stabilization": Field("str", default="none", choices=STABILIZATIONS),
+        "rho": Field("float", default=0.25, check=open_interval(0.0, 1.0 + 1e-12)),
+        "ghost_gamma": Field("float", default=1e-2, check=positive),
+    },
+    "solver": {
+        "newton_tol": Field("float", default=1e-9, check=positive),
+        "newton_max": Field("int", default=30, check=at_least(1)),
+        "contact_points": Field("int", default=3, choices=(1, 2, 3, 4), doc="Gauss points per cut segment"),
+        "active0": Field("float", default=0.1, check=at_least(0.0),
+                         doc="first active set: gap <= active0 * h (then a secant predictor)"),
+        "predictor_steps": Field("int", default=4, check=at_least(0)),
+        "refactor_points": Field("int", default=12, check=at_least(0),
+                                 doc="re-use the factorization (GMRES) when fewer points changed"),
+    },
+    "output": {
+        "vtu": Field("bool", default=True),
+        "pressure_csv": Field("bool", default=True),
+        "save_solution": Field("bool", default=False, doc="write meshes and DOF arrays (a reference)"),
+    },
+}
+
+
+def lame(body, source, key):
+    """Lame coefficients of a body given either (lambda, mu) or (E, nu), plane strain."""
+    has_lame = body["lambda"] is not None or body["mu"] is not None
+    has_young = body["E"] is not None or body["nu"] is not None
+    if has_lame and has_young:
+        raise SceneError(f"{source}: key '{key}': give either lambda and mu or E and nu, not both")
+    if body["E"] is not None and body["nu"] is not None:
+        E, nu = body["E"], body["nu"]
+        return E * nu / ((1 + nu) * (1 - 2 * nu)), E / (2 * (1 + nu))
+    if body["lambda"] is not None and body["mu"] is not None:
+        lam, mu = body["lambda"], body["mu"]
+        if lam + mu <= 0:
+            raise SceneError(f"{source}: key '{key}.lambda': lambda + mu must be > 0")
+        return lam, mu
+    raise SceneError(f"{source}: key '{key}': needs lambda and mu (or E and nu)")
+
+
+def check(scene, source):
+    geo = scene["geometry"]
+    if not (geo["xmax"] > geo["xmin"] and geo["ymax"] > geo["ymin"]):
+        raise SceneError(f"{source}: key 'geometry': the box is empty (need xmax > xmin, ymax > ymin)")
+    for key in ("body1", "body2"):
+        scene[key]["lame"] = lame(scene[key], source, key)
+    disk = scene["body1"]
+    (cx, cy), r = disk["centre"], disk["radius"]
+    if cx - r <= geo["xmin"] or cx + r >= geo["xmax"] or cy - r <= geo["ymin"] or cy + r >= geo["ymax"]:
+        raise SceneError(f"{source}: key 'body1': the disk (centre {disk['centre']}, radius {r}) "
+                         f"is not inside the box")
+    slab = scene["body2"]
+    if not geo["ymin"] < slab["top"] < geo["ymax"]:
+        raise SceneError(f"{source}: key 'body2.top': the slab top {slab['top']} misses the box "
+                         f"({geo['ymin']}, {geo['ymax']})")
+    if cy - r < slab["top"] - 1e-12:
+        raise SceneError(f"{source}: key 'body1': the disk overlaps the slab initially "
+                         f"(lowest point {cy - r:g} < slab top {slab['top']:g})")
+    line = slab["bottom_line"]
+    if line:
+        if len(line) != 2:
+            raise SceneError(f"{source}: key 'body2.bottom_line': expected [a, b] (y = a + b x), got {line}")
+        a, b = line
+        ends = (a + b * geo["xmin"], a + b * geo["xmax"])
+        if not all(geo["ymin"] <= y < slab["top"] for y in ends):
+            raise SceneError(f"{source}: key 'body2.bottom_line': the line y = {a:g} + {b:g} x must cross "
+                             f"the box between its bottom and the slab top")
+    fix = scene["rigid"]["fix_x_points"]
+    for px, py in (fix[:2], fix[2:]):
+        if (px - cx) ** 2 + (py - cy) ** 2 >= r ** 2:
+            raise SceneError(f"{source}: key 'rigid.fix_x_points': ({px:g}, {py:g}) is not inside the disk")
+
+
+def freefem_args(scene, mesh_file=""):
+    geo, meth, solver = scene["geometry"], scene["method"], scene["solver"]
+    disk, slab = scene["body1"], scene["body2"]
+    args = [f"-Ddegree={meth['degree']}"]
+
+    def put(key, value):
+        args.extend([f"-{key}", repr(value) if isinstance(value, float) else str(value)])
+
+    put("name", scene["scene"]["name"])
+    for key in ("xmin", "xmax", "ymin", "ymax"):
+        put(key, geo[key])
+    put("nx", scene["mesh"]["nx"])
+    put("disk_cx", disk["centre"][0])
+    put("disk_cy", disk["centre"][1])
+    put("disk_r", disk["radius"])
+    put("slab_top", slab["top"])
+    if slab["bottom_line"]:
+        put("slab_bottom_a", slab["bottom_line"][0])
+        put("slab_bottom_b", slab["bottom_line"][1])
+    for i, body in ((1, disk), (2, slab)):
+        put(f"lambda{i}", body["lame"][0])
+        put(f"mu{i}", body["lame"][1])
+        put(f"f{i}x", body["body_force"][0])
+        put(f"f{i}y", body["body_force"][1])
+    put("mass_eps", scene["rigid"]["mass_eps"])
+    fix = scene["rigid"]["fix_x_points"]
+    for key, value in zip(("fix_ax", "fix_ay", "fix_bx", "fix_by"), fix):
+        put(key, value)
+    put("theta", meth["theta"])
+    put("gamma0", meth["gamma0"])
+    put("stabilization", meth["stabilization"])
+    put("rho", meth["rho"])
+    put("ghost_gamma", meth["ghost_gamma"])
+    put("newton_tol", solver["newton_tol"])
+    put("newton_max", solver["newton_max"])
+    put("contact_qp", solver["contact_points"])
+    put("active0", solver["active0"])
+    put("predictor_steps", solver["predictor_steps"])
+    put("refactor_points", solver["refactor_points"])
+    put("vtu", int(scene["output"]["vtu"]))
+    put("csv", int(scene["output"]["pressure_csv"]))
+    put("save", int(scene["output"]["save_solution"]))
+    return args
+
+
+def prepare_mesh(scene, workdir, run_command):
+    return ""      # the background mesh is a FreeFEM square
+
+
+def summary_lines(results):
+    contact, cut = results["contact"], results["cut"]
+    centre = results["disk"]["centre_displacement"]
+    return [
+        f"bodies: {results['dofs_body1']} + {results['dofs_body2']} DOFs on the cut spaces, "
+        f"areas {results['areas']['body1']:.6g} and {results['areas']['body2']:.6g}",
+        f"disk centre displacement: ({centre[0]:.6g}, {centre[1]:.6g})",
+        f"contact: active length {contact['active_length']:.4g} of {contact['boundary_length']:.4g}, "
+        f"force on disk ({contact['force_on_body1'][0]:.4g}, {contact['force_on_body1'][1]:.6g}), "
+        f"balance error {contact['force_balance_error']:.1e}, max pressure {contact['max_pressure']:.4g}",
+        f"cut elements: min ratio {cut['min_ratio_body1']:.2e} (disk), {cut['min_ratio_body2']:.2e} (slab); "
+        f"stabilization {cut['stabilization']}: cases a/b/c = {cut['case_a']}/{cut['case_b']}/{cut['case_c']}",
+    ]

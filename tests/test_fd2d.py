@@ -1,0 +1,83 @@
+"""Two-body fictitious-domain contact (disk on slab): physics checks on coarse meshes."""
+
+import pytest
+
+from conftest import run_cli
+
+DISK = "cases/disk_on_slab.toml"
+
+
+def centre_y(run):
+    return run.results["disk"]["centre_displacement"][1]
+
+
+@pytest.mark.parametrize("degree", [1, 2])
+@pytest.mark.parametrize("theta", [1, 0, -1])
+def test_disk_on_slab_converges_and_balances(run_scene, degree, theta):
+    run = run_scene(DISK, "mesh.nx=24", f"method.degree={degree}", f"method.theta={theta}")
+    r = run.results
+    assert r["newton"]["iterations"] <= 8
+    assert r["newton"]["residual"][-1] < 1e-6
+    # the contact force carries the disk's weight (0, -0.1 |disk|)
+    applied = r["contact"]["applied_force_body1"][1]
+    assert applied == pytest.approx(-0.1 * r["areas"]["body1"], rel=1e-12)
+    assert r["contact"]["force_balance_error"] < 1e-6
+    assert 0 < r["contact"]["active_length"] < 0.5 * r["contact"]["boundary_length"]
+    # the disk goes down by about 0.018 (NX = 80 P2 gives -0.01838)
+    assert -0.025 < centre_y(run) < -0.014
+    assert r["dofs"] == r["dofs_body1"] + r["dofs_body2"]
+    assert r["dofs_body1"] < 0.5 * r["dofs"]          # unused background DOFs never enter
+
+
+def test_slab_interface_on_mesh_edges_is_handled(run_scene):
+    # nx = 40: y = -0.25 lies on grid lines; nx = 42: it cuts the elements.
+    on_edges = run_scene(DISK, "mesh.nx=40")
+    cutting = run_scene(DISK, "mesh.nx=42")
+    assert on_edges.results["areas"]["body2"] == pytest.approx(0.25, rel=1e-9)
+    assert cutting.results["areas"]["body2"] == pytest.approx(0.25, rel=1e-9)
+    assert centre_y(on_edges) == pytest.approx(centre_y(cutting), rel=0.01)
+
+
+def test_nitsche_dirichlet_line_reproduces_strong_bottom(run_scene):
+    strong = run_scene(DISK, "mesh.nx=30")
+    nitsche = run_scene(DISK, "mesh.nx=30", "body2.bottom_line=[-0.5, 0.0]")
+    assert nitsche.results["body2_support"] == "nitsche_line"
+    assert strong.results["body2_support"] == "strong_box_bottom"
+    assert centre_y(nitsche) == pytest.approx(centre_y(strong), rel=1e-3)
+
+
+def test_tilted_cut_dirichlet_scene(run_scene):
+    run = run_scene("cases/disk_on_tilted_slab.toml", "mesh.nx=30")
+    r = run.results
+    assert r["body2_support"] == "nitsche_line"
+    assert r["cut"]["dirichlet_case_a"] + r["cut"]["dirichlet_case_b"] + r["cut"]["dirichlet_case_c"] > 0
+    assert r["areas"]["body2"] == pytest.approx(0.19, rel=1e-9)   # between y = -0.44 + 0.1x and -0.25
+    assert r["contact"]["force_balance_error"] < 1e-6
+
+
+@pytest.mark.parametrize("stabilization", ["neighbour", "ghost"])
+def test_stabilizations_agree_with_plain_method(run_scene, stabilization):
+    plain = run_scene(DISK, "mesh.nx=30")
+    stab = run_scene(DISK, "mesh.nx=30", f"method.stabilization='{stabilization}'")
+    cut = stab.results["cut"]
+    assert cut["stabilization"] == stabilization
+    assert cut["case_a"] + cut["case_b"] + cut["case_c"] > 0
+    if stabilization == "neighbour":
+        assert cut["case_b"] > 0 and cut["case_c"] == 0
+    assert centre_y(stab) == pytest.approx(centre_y(plain), rel=0.02)
+
+
+@pytest.mark.parametrize("override, key", [
+    ("body1.centre=[0.0, 0.4]", "body1"),
+    ("body1.radius=0.6", "body1"),
+    ("body2.top=0.7", "body2.top"),
+    ("body2.bottom_line=[-0.6, 0.0]", "body2.bottom_line"),
+    ("body1.centre=[0.0, -0.1]", "body1"),                     # overlaps the slab
+    ("method.stabilization='magic'", "method.stabilization"),
+    ("rigid.fix_x_points=[0.0, 0.0, 0.4, 0.4]", "rigid.fix_x_points"),
+    ("mesh.nx=1", "mesh.nx"),
+])
+def test_bad_fd_geometry_is_rejected(override, key):
+    proc = run_cli("run", DISK, "--set", override)
+    assert proc.returncode == 2
+    assert f"'{key}" in proc.stderr and DISK in proc.stderr and "Traceback" not in proc.stderr
