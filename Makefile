@@ -42,6 +42,7 @@ clean:
 .PHONY: foundation-study
 foundation-study: setup
 	$(PYTHON) -m driver study foundation-newton square-pressure
+	$(PYTHON) -m driver readme
 
 # Residual estimators on the square: uniform ladder (slides' table), adaptive loop,
 # adapted mesh figure. The reference (adaptive P2, ~1e6 DOFs) is computed once
@@ -49,3 +50,15 @@ foundation-study: setup
 .PHONY: aposteriori-study
 aposteriori-study: setup
 	$(PYTHON) -m driver study aposteriori-uniform aposteriori-adaptive square-adapted
+	$(PYTHON) -m driver readme
+
+# Fictitious-domain disk on slab: convergence (P1/P2, theta = 1, 0, -1) against a
+# P2 reference (NX = 320, computed once into runs/reference/), gamma0 sweep at
+# NX = 90, stabilization on sliver cuts.
+.PHONY: fd2d-study readme
+fd2d-study: setup
+	$(PYTHON) -m driver study fd2d-convergence fd2d-gamma0 fd2d-stabilization
+	$(PYTHON) -m driver readme
+
+readme:
+	$(PYTHON) -m driver readme

@@ -44,11 +44,23 @@ def format_summary(scene, module, results, folder, wall):
     return "\n".join(lines)
 
 
-def cmd_study(args):
-    from driver.studies import STUDIES
+def all_studies():
+    from driver import fd2d_studies, studies
 
+    return {**studies.STUDIES, **fd2d_studies.STUDIES}
+
+
+def cmd_study(args):
+    studies = all_studies()
     for name in args.names:
-        STUDIES[name]()
+        studies[name]()
+    return 0
+
+
+def cmd_readme(args):
+    from driver.readme import update
+
+    update()
     return 0
 
 
@@ -63,11 +75,11 @@ def build_parser():
     run.add_argument("--script", help="use this .edp instead of the scene's script (development)")
     run.add_argument("-v", "--verbose", action="store_true", help="echo FreeFEM's output")
     run.set_defaults(func=cmd_run)
-    from driver.studies import STUDIES
-
     study = sub.add_parser("study", help="run a study: tables in results/, plots in plots/")
-    study.add_argument("names", nargs="+", choices=sorted(STUDIES))
+    study.add_argument("names", nargs="+", choices=sorted(all_studies()))
     study.set_defaults(func=cmd_study)
+    readme = sub.add_parser("readme", help="refill the README's generated tables from results/*.csv")
+    readme.set_defaults(func=cmd_readme)
     return parser
 
 

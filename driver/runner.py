@@ -144,3 +144,15 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
     final.parent.mkdir(parents=True, exist_ok=True)
     staging.rename(final)
     return results, final, wall
+
+
+def run_freefem_tool(script, args, output, what):
+    """Run a post-processing script (errors, comparisons) that writes one JSON file."""
+    output = Path(output)
+    output.unlink(missing_ok=True)
+    command = [freefem_binary(), "-nw", "-v", "0", str(FREEFEM_DIR / script)] + list(args)
+    proc = subprocess.run(command, cwd=REPO, env=freefem_env(), capture_output=True, text=True)
+    if proc.returncode != 0 or not output.is_file():
+        raise FreeFemError(f"{what} failed (exit {proc.returncode}):\n  "
+                           f"{freefem_message(proc.stdout + proc.stderr)}")
+    return parse_json_file(output)

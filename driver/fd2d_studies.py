@@ -1,0 +1,232 @@
+"""Studies of the 2D fictitious-domain contact (disk on slab): convergence against a
+fine reference, gamma0 influence, stabilization on sliver cuts.
+
+Errors come from freefem/fd_error_2d.edp (reference cut integration, coarse field
+extended where it is undefined); this module only runs, tabulates and plots.
+"""
+
+import os
+
+import numpy as np
+import pandas as pd
+
+from driver.runner import REPO, run_freefem_tool, run_scene
+from driver.scene import load_scene
+from driver.studies import PLOTS_DIR, RESULTS_DIR, loglog_slope, markdown_table, progress, run_point
+
+DISK = REPO / "cases" / "disk_on_slab.toml"
+REFERENCE_NX = int(os.environ.get("FD2D_REFERENCE_NX", "320"))
+LADDER = (10, 20, 40, 80, 160)
+GAMMA0S = (400, 200, 100, 50, 25, 10, 1, 1 / 10, 1 / 25, 1 / 50, 1 / 100, 1 / 200, 1 / 400)
+QUIET = ["output.vtu=false", "output.pressure_csv=false"]
+
+# The seed's rates (slides, gamma0 = 1/200): (degree, theta) -> (L2 b1, L2 b2, H1 b1, H1 b2).
+SEED_RATES = {
+    (1, 1): (2.25, 1.72, 1.11, 0.97), (1, 0): (2.10, 1.73, 1.12, 0.97), (1, -1): (2.00, 1.73, 1.12, 0.97),
+    (2, 1): (1.87, 2.03, 1.58, 1.30), (2, 0): (2.23, 2.14, 1.80, 1.31), (2, -1): (2.90, 2.21, 1.70, 1.31),
+}
+
+
+def reference(nx=REFERENCE_NX):
+    """P2, theta = -1, gamma0 = 1/200 at NX = nx, saved once under runs/reference/."""
+    folder = REPO / "runs" / "reference" / f"disk_on_slab_p2_nx{nx}"
+    if (folder / "solution_meta.txt").is_file() and (folder / "results.json").is_file():
+        return folder
+    progress(0, 0, f"computing the disk-on-slab reference (P2, NX = {nx}) in {folder}")
+    scene, module = load_scene(DISK, [f"mesh.nx={nx}", "output.save_solution=true", *QUIET])
+    run_scene(scene, module, out_dir=folder)
+    return folder
+
+
+def errors_against(ref, run_folder):
+    return run_freefem_tool("fd_error_2d.edp", ["-ref", str(ref), "-run", str(run_folder),
+                                                "-out", str(run_folder / "errors.json")],
+                            run_folder / "errors.json", f"error computation for {run_folder.name}")
+
+
+def run_with_errors(ref, overrides, labels):
+    """One run (saved) and its errors against the reference: a table row."""
+    row, results, folder = run_point(DISK, [*overrides, "output.save_solution=true", *QUIET])
+    out = dict(labels, status=row["status"], message=row.get("message", ""))
+    if results is None:
+        return out
+    err = errors_against(ref, folder)
+    out.update(nx=results["nx"], h=results["h"], dofs_body1=results["dofs_body1"],
+               dofs_body2=results["dofs_body2"], dofs=results["dofs"],
+               l2_body1=err["l2_body1"], l2_body2=err["l2_body2"],
+               h1_body1=err["h1_body1"], h1_body2=err["h1_body2"],
+               newton_iterations=results["newton"]["iterations"], wall_s=row["wall_s"],
+               min_cut_ratio=min(results["cut"]["min_ratio_body1"], results["cut"]["min_ratio_body2"]),
+               case_a=results["cut"]["case_a"], case_b=results["cut"]["case_b"],
+               case_c=results["cut"]["case_c"],
+               centre_uy=results["disk"]["centre_displacement"][1])
+    return out
+
+
+def rates_of(table, group_keys):
+    """Least-squares slope in h on the finest half of each ladder (at least 3 points)."""
+    rows = []
+    for key, group in table[table.status == "converged"].groupby(group_keys):
+        group = group.sort_values("h")
+        finest = group.iloc[:max(3, (len(group) + 1) // 2)]
+        for body in (1, 2):
+            for norm in ("l2", "h1"):
+                column = f"{norm}_body{body}"
+                rows.append(dict(zip(group_keys, key), body=body, norm=norm.upper(),
+                                 rate=loglog_slope(finest.h, finest[column]),
+                                 nx_used=" ".join(str(int(n)) for n in sorted(finest.nx))))
+    return pd.DataFrame(rows)
+
+
+def convergence():
+    ref = reference()
+    grid = [(d, t, nx) for d in (1, 2) for t in (1, 0, -1) for nx in LADDER]
+    rows = []
+    for i, (degree, theta, nx) in enumerate(grid, 1):
+        progress(i, len(grid), f"P{degree} theta={theta} NX={nx}")
+        rows.append(run_with_errors(ref, [f"method.degree={degree}", f"method.theta={theta}",
+                                          f"mesh.nx={nx}"], dict(degree=degree, theta=theta)))
+    table = pd.DataFrame(rows)
+    RESULTS_DIR.mkdir(exist_ok=True)
+    table.to_csv(RESULTS_DIR / "fd2d_convergence.csv", index=False)
+    rates = rates_of(table, ["degree", "theta"])
+    rates.to_csv(RESULTS_DIR / "fd2d_rates.csv", index=False)
+    print(markdown_table(rates_table(rates), digits=3))
+    plot_convergence(table, "fd2d_convergence.png",
+                     f"disk on slab, gamma0 = 1/200, reference P2 NX = {REFERENCE_NX} (make fd2d-study)")
+    return table
+
+
+def rates_table(rates):
+    """Ours beside the seed's: one row per norm and body, one column per (degree, theta)."""
+    rows = []
+    for norm, body, seed_index in (("L2", 1, 0), ("L2", 2, 1), ("H1", 1, 2), ("H1", 2, 3)):
+        row = {"rate": f"{norm} body {body}"}
+        for degree in (1, 2):
+            for theta in (1, 0, -1):
+                pick = rates[(rates.degree == degree) & (rates.theta == theta) & (rates.body == body)
+                             & (rates.norm == norm)]
+                ours = f"{pick.rate.iloc[0]:.2f}" if len(pick) else "-"
+                row[f"P{degree} th={theta}"] = f"{ours} ({SEED_RATES[(degree, theta)][seed_index]:.2f})"
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def plot_convergence(table, name, title, group_keys=("degree", "theta"), label=None):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ok = table[table.status == "converged"]
+    fig, axes = plt.subplots(2, 2, figsize=(11, 8), sharex=True)
+    for ax, (norm, body) in zip(axes.ravel(), [("l2", 1), ("l2", 2), ("h1", 1), ("h1", 2)]):
+        column = f"{norm}_body{body}"
+        for key, group in ok.groupby(list(group_keys)):
+            group = group.sort_values("h")
+            text = label(key) if label else f"P{key[0]}, theta={key[1]:g}"
+            ax.loglog(group.h, group[column], "o-", ms=4, label=text)
+        h = np.array(sorted(ok.h.unique()))
+        if len(h):
+            for order, style in ((1, ":"), (2, "--")):
+                base = ok[column].min()
+                ax.loglog(h, base * (h / h[0]) ** order, "k" + style, lw=0.8, label=f"h^{order}")
+        ax.set_title(f"relative {norm.upper()} error, body {body} ({'disk' if body == 1 else 'slab'})")
+        ax.set_xlabel("h")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.suptitle(title)
+    fig.tight_layout()
+    PLOTS_DIR.mkdir(exist_ok=True)
+    fig.savefig(PLOTS_DIR / name, dpi=110)
+    print(f"wrote {PLOTS_DIR / name}")
+
+
+def gamma0_sweep():
+    ref = reference()
+    grid = [(t, g) for t in (1, 0, -1) for g in GAMMA0S]
+    rows = []
+    for i, (theta, gamma0) in enumerate(grid, 1):
+        progress(i, len(grid), f"P2 NX=90 theta={theta} gamma0={gamma0:g}")
+        rows.append(run_with_errors(ref, ["mesh.nx=90", f"method.theta={theta}", f"method.gamma0={gamma0!r}"],
+                                    dict(degree=2, theta=theta, gamma0=gamma0)))
+    table = pd.DataFrame(rows)
+    if "h1_body1" in table:
+        table["h1_both"] = np.sqrt(table.h1_body1 ** 2 + table.h1_body2 ** 2)
+    table.to_csv(RESULTS_DIR / "fd2d_gamma0.csv", index=False)
+    print(markdown_table(table[["theta", "gamma0", "status", "newton_iterations", "h1_body1", "h1_body2"]]))
+
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    for theta, group in table.groupby("theta"):
+        ok = group[group.status == "converged"]
+        failed = group[group.status != "converged"]
+        line, = ax.loglog(ok.gamma0, ok.h1_body1, "o-", label=f"theta={theta:g}, disk")
+        ax.loglog(ok.gamma0, ok.h1_body2, "s--", color=line.get_color(), label=f"theta={theta:g}, slab")
+        ax2.semilogx(ok.gamma0, ok.newton_iterations, "o-", color=line.get_color(), label=f"theta={theta:g}")
+        if len(failed):
+            ax2.semilogx(failed.gamma0, [0] * len(failed), "x", ms=9, color=line.get_color(),
+                         label=f"theta={theta:g}: not converged")
+    ax.set_xlabel("gamma0")
+    ax.set_title("relative H1 error, P2, h = 1/90")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+    ax2.set_xlabel("gamma0")
+    ax2.set_title("Newton iterations (x: did not converge)")
+    ax2.grid(True, which="both", alpha=0.3)
+    ax2.legend(fontsize=7)
+    fig.suptitle(f"disk on slab: influence of gamma0 (reference P2 NX = {REFERENCE_NX}; make fd2d-study)")
+    fig.tight_layout()
+    fig.savefig(PLOTS_DIR / "fd2d_gamma0.png", dpi=110)
+    print(f"wrote {PLOTS_DIR / 'fd2d_gamma0.png'}")
+    return table
+
+
+def sliver_shift(nx, epsilon=1e-6):
+    """Vertical shift putting the slab top epsilon*h above a grid line: sliver cuts."""
+    return epsilon / nx
+
+
+def stabilization():
+    """Ladder on a shifted geometry whose cut ratios go down to ~1e-6."""
+    ref = reference()
+    grid = [(s, nx) for s in ("none", "neighbour", "ghost") for nx in LADDER]
+    rows = []
+    for i, (stab, nx) in enumerate(grid, 1):
+        shift = sliver_shift(nx)
+        progress(i, len(grid), f"P2 theta=-1 NX={nx} stabilization={stab} shift={shift:.1e}")
+        rows.append(run_with_errors(ref, [f"mesh.nx={nx}", f"method.stabilization='{stab}'",
+                                          f"body1.centre=[0.0, {shift!r}]", f"body2.top={-0.25 + shift!r}",
+                                          f"rigid.fix_x_points=[0.0, {shift!r}, 0.0, {0.1 + shift!r}]"],
+                                    dict(degree=2, theta=-1, stabilization=stab, shift=shift)))
+    table = pd.DataFrame(rows)
+    table.to_csv(RESULTS_DIR / "fd2d_stabilization.csv", index=False)
+    rates = rates_of(table, ["stabilization"])
+    rates.to_csv(RESULTS_DIR / "fd2d_stabilization_rates.csv", index=False)
+    print(markdown_table(table[["stabilization", "nx", "status", "min_cut_ratio", "case_a", "case_b", "case_c",
+                                "newton_iterations", "h1_body1", "h1_body2"]]))
+    plot_convergence(table, "fd2d_stabilization.png",
+                     "disk on slab shifted by 1e-6 h (sliver cuts), P2, theta = -1 (make fd2d-study)",
+                     group_keys=("stabilization",), label=lambda key: f"{key[0] if isinstance(key, tuple) else key}")
+    return table
+
+
+def check_bars(table):
+    """The issue's bars, evaluated on a convergence table (used by the tests and the README)."""
+    rates = rates_of(table, ["degree", "theta"])
+    failures = []
+    for _, r in rates.iterrows():
+        bound = 1.6 if r.norm == "L2" else (1.25 if r.degree == 2 else 0.9)
+        if r.rate < bound:
+            failures.append(f"P{r.degree} theta={r.theta} body {r.body} {r.norm}: {r.rate:.2f} < {bound}")
+    return rates, failures
+
+
+STUDIES = {
+    "fd2d-convergence": convergence,
+    "fd2d-gamma0": gamma0_sweep,
+    "fd2d-stabilization": stabilization,
+}
+

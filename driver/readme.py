@@ -1,0 +1,119 @@
+"""Fill the README's generated tables from results/*.csv (make readme).
+
+A generated block sits between `<!-- table:NAME -->` and `<!-- end:NAME -->`;
+everything between the markers is replaced, nothing else is touched. A table
+whose CSV is missing is left as it is (and reported).
+"""
+
+import re
+
+import pandas as pd
+
+from driver.runner import REPO
+from driver.studies import markdown_table
+
+RESULTS = REPO / "results"
+
+
+def foundation_newton():
+    t = pd.read_csv(RESULTS / "foundation_newton.csv")
+    t["newton_iterations"] = t["newton_iterations"].map(lambda v: "" if pd.isna(v) else str(int(v)))
+    return markdown_table(t[["theta", "degree", "gamma0", "status", "newton_iterations", "active_length",
+                             "contact_xmin", "contact_xmax"]])
+
+
+def aposteriori_uniform():
+    t = pd.read_csv(RESULTS / "aposteriori_uniform.csv")
+    t = t[(t.theta == -1) & (t.status == "converged")].sort_values("nx")
+    rows = {"h": [f"1/{int(n)}" for n in t.nx], "DOFs": [str(int(d)) for d in t.dofs]}
+    for key, label, scale in (("l2_error", "L2 error (x1e-4)", 1e4), ("h1_error", "H1 error (x1e-3)", 1e3),
+                              ("eta1", "eta1", 1), ("eta2", "eta2", 1), ("eta3", "eta3", 1),
+                              ("eta4", "eta4", 1), ("eta", "eta", 1), ("efficiency", "Eff = eta/(E H1)", 1)):
+        rows[label] = [f"{v * scale:.4g}" for v in t[key]]
+    slopes = pd.read_csv(RESULTS / "aposteriori_uniform_slopes.csv")
+    s = slopes[(slopes.theta == -1)].iloc[0]
+    slope = {"L2 error (x1e-4)": s.l2_error, "H1 error (x1e-3)": s.h1_error, "eta1": s.eta1, "eta2": s.eta2,
+             "eta3": s.eta3, "eta4": s.eta4, "eta": s.eta}
+    lines = ["| size of mesh h | " + " | ".join(rows["h"]) + " | slope |",
+             "|---|" + "---|" * (len(rows["h"]) + 1)]
+    for label, values in rows.items():
+        if label == "h":
+            continue
+        tail = f"{slope[label]:.3f}" if label in slope else ""
+        lines.append(f"| {label} | " + " | ".join(values) + f" | {tail} |")
+    return "\n".join(lines)
+
+
+def aposteriori_slopes():
+    t = pd.read_csv(RESULTS / "aposteriori_uniform_slopes.csv")
+    return markdown_table(t[["theta", "gamma0", "runs", "l2_error", "h1_error", "eta", "efficiency_min",
+                             "efficiency_max"]], digits=3)
+
+
+def aposteriori_adaptive():
+    t = pd.read_csv(RESULTS / "aposteriori_adaptive.csv")
+    return markdown_table(t[["step", "dofs", "h1_error", "l2_error", "eta", "efficiency", "newton_iterations"]])
+
+
+def aposteriori_adaptive_summary():
+    t = pd.read_csv(RESULTS / "aposteriori_adaptive_summary.csv")
+    return markdown_table(t, digits=3)
+
+
+def fd2d_rates():
+    from driver.fd2d_studies import rates_table
+
+    return markdown_table(rates_table(pd.read_csv(RESULTS / "fd2d_rates.csv")))
+
+
+def fd2d_gamma0():
+    t = pd.read_csv(RESULTS / "fd2d_gamma0.csv")
+    rows = []
+    for gamma0, group in t.groupby("gamma0", sort=False):
+        row = {"gamma0": f"{gamma0:.4g}"}
+        for theta in (1, 0, -1):
+            g = group[group.theta == theta]
+            if not len(g):
+                continue
+            r = g.iloc[0]
+            row[f"theta={theta}: H1 disk / slab"] = (f"{r.h1_body1:.3g} / {r.h1_body2:.3g}"
+                                                     if r.status == "converged" else "not converged")
+            row[f"theta={theta}: Newton"] = (str(int(r.newton_iterations)) if r.status == "converged"
+                                             else r.status)
+        rows.append(row)
+    return markdown_table(pd.DataFrame(rows))
+
+
+def fd2d_stabilization():
+    t = pd.read_csv(RESULTS / "fd2d_stabilization.csv")
+    cols = ["stabilization", "nx", "status", "min_cut_ratio", "case_a", "case_b", "case_c",
+            "newton_iterations", "h1_body1", "h1_body2"]
+    return markdown_table(t[[c for c in cols if c in t]])
+
+
+TABLES = {
+    "foundation_newton": foundation_newton,
+    "aposteriori_uniform": aposteriori_uniform,
+    "aposteriori_slopes": aposteriori_slopes,
+    "aposteriori_adaptive": aposteriori_adaptive,
+    "aposteriori_adaptive_summary": aposteriori_adaptive_summary,
+    "fd2d_rates": fd2d_rates,
+    "fd2d_gamma0": fd2d_gamma0,
+    "fd2d_stabilization": fd2d_stabilization,
+}
+
+
+def update(path=REPO / "README.md"):
+    text = path.read_text()
+    for name, make in TABLES.items():
+        pattern = re.compile(rf"(<!-- table:{name} -->\n)(.*?)(<!-- end:{name} -->)", re.S)
+        if not pattern.search(text):
+            continue
+        try:
+            table = make()
+        except FileNotFoundError as exc:
+            print(f"readme: {name}: {exc.filename} missing, table left as it was")
+            continue
+        text = pattern.sub(lambda m: m.group(1) + table + "\n" + m.group(3), text)
+        print(f"readme: {name} updated")
+    path.write_text(text)
