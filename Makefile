@@ -54,10 +54,10 @@ aposteriori-study: setup
 
 # Fictitious-domain disk on slab: convergence (P1/P2, theta = 1, 0, -1) against a
 # P2 reference (NX = 320, computed once into runs/reference/), gamma0 sweep at
-# NX = 90, stabilization on sliver cuts.
+# NX = 90, stabilization on sliver cuts, cross-check against body-fitted meshes.
 .PHONY: fd2d-study readme
 fd2d-study: setup
-	$(PYTHON) -m driver study fd2d-convergence fd2d-gamma0 fd2d-stabilization
+	$(PYTHON) -m driver study fd2d-convergence fd2d-gamma0 fd2d-stabilization fd2d-crosscheck
 	$(PYTHON) -m driver readme
 
 readme:

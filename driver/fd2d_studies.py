@@ -10,6 +10,7 @@ import os
 import numpy as np
 import pandas as pd
 
+from driver.errors import DriverError
 from driver.runner import REPO, run_freefem_tool, run_scene
 from driver.scene import load_scene
 from driver.studies import PLOTS_DIR, RESULTS_DIR, loglog_slope, markdown_table, progress, run_point
@@ -230,3 +231,50 @@ STUDIES = {
     "fd2d-stabilization": stabilization,
 }
 
+
+
+FITTED_H = 320          # fitted meshes of the two bodies, h = 1/320 (P2)
+
+
+def fitted_reference():
+    """The disk on slab on body-fitted gmsh meshes (P2, theta = -1), saved once."""
+    folder = REPO / "runs" / "reference" / f"disk_on_slab_fitted_h{FITTED_H}"
+    if (folder / "results.json").is_file() and (folder / "solution_meta.txt").is_file():
+        return folder
+    progress(0, 0, f"computing the body-fitted disk on slab (P2, h = 1/{FITTED_H}) in {folder}")
+    folder.mkdir(parents=True, exist_ok=True)
+    run_freefem_tool("fitted_two_body_2d.edp", ["-h", repr(1.0 / FITTED_H), "-save", "1", "-vtu", "0",
+                                                "-csv", "0", "-outdir", str(folder)],
+                     folder / "results.json", "body-fitted disk on slab")
+    return folder
+
+
+def crosscheck():
+    """Fictitious domain against body-fitted meshes: difference vs discretization error."""
+    ref, fitted = reference(), fitted_reference()
+    rows = []
+    for nx in (80, 160):
+        progress(nx // 80, 2, f"FD NX={nx} against the fitted solution (h = 1/{FITTED_H})")
+        row, results, folder = run_point(DISK, [f"mesh.nx={nx}", "output.save_solution=true", *QUIET])
+        if results is None:
+            raise DriverError(f"FD run NX={nx} failed: {row['message']}")
+        diff = run_freefem_tool("fd_vs_fitted_2d.edp", ["-fitted", str(fitted), "-fd", str(folder),
+                                                        "-out", str(folder / "diff.json")],
+                                folder / "diff.json", f"FD NX={nx} vs fitted")
+        err = errors_against(ref, folder)
+        rows.append(dict(comparison=f"FD NX={nx} vs fitted h=1/{FITTED_H}",
+                         **{k: diff[k] for k in ("l2_body1", "l2_body2", "h1_body1", "h1_body2")}))
+        rows.append(dict(comparison=f"FD NX={nx} error vs FD reference NX={REFERENCE_NX}",
+                         **{k: err[k] for k in ("l2_body1", "l2_body2", "h1_body1", "h1_body2")}))
+    diff = run_freefem_tool("fd_vs_fitted_2d.edp", ["-fitted", str(fitted), "-fd", str(ref),
+                                                    "-out", str(ref / "diff_fitted.json")],
+                            ref / "diff_fitted.json", "FD reference vs fitted")
+    rows.append(dict(comparison=f"FD reference NX={REFERENCE_NX} vs fitted h=1/{FITTED_H}",
+                     **{k: diff[k] for k in ("l2_body1", "l2_body2", "h1_body1", "h1_body2")}))
+    table = pd.DataFrame(rows)
+    table.to_csv(RESULTS_DIR / "fd2d_crosscheck.csv", index=False)
+    print(markdown_table(table, digits=3))
+    return table
+
+
+STUDIES["fd2d-crosscheck"] = crosscheck

@@ -91,7 +91,12 @@ def fd2d_stabilization():
     return markdown_table(t[[c for c in cols if c in t]])
 
 
+def fd2d_crosscheck():
+    return markdown_table(pd.read_csv(RESULTS / "fd2d_crosscheck.csv"), digits=3)
+
+
 TABLES = {
+    "fd2d_crosscheck": fd2d_crosscheck,
     "foundation_newton": foundation_newton,
     "aposteriori_uniform": aposteriori_uniform,
     "aposteriori_slopes": aposteriori_slopes,
