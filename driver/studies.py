@@ -180,22 +180,27 @@ def aposteriori_uniform():
     table = pd.DataFrame(rows)
     RESULTS_DIR.mkdir(exist_ok=True)
     table.to_csv(RESULTS_DIR / "aposteriori_uniform.csv", index=False)
-    slopes = []
-    for (theta, gamma0), group in table[table.status == "converged"].groupby(["theta", "gamma0"]):
-        if len(group) < 2:
-            continue
-        slope = {k: -loglog_slope(group.h, group[k])
-                 for k in ("l2_error", "h1_error", "eta1", "eta2", "eta3", "eta4", "eta")}
-        slopes.append(dict(theta=theta, gamma0=gamma0, runs=len(group), **slope,
-                           efficiency_min=group.efficiency.min(), efficiency_max=group.efficiency.max(),
-                           efficiency_mean=group.efficiency.mean()))
-    slopes = pd.DataFrame(slopes)
+    slopes = uniform_slopes(table)
     slopes.to_csv(RESULTS_DIR / "aposteriori_uniform_slopes.csv", index=False)
     print(markdown_table(table[["theta", "gamma0", "nx", "dofs", "l2_error", "h1_error", "eta1",
                                 "eta2", "eta3", "eta4", "eta", "efficiency", "status"]]))
     print(markdown_table(slopes, digits=3))
     plot_aposteriori_uniform(table)
     return table
+
+
+def uniform_slopes(table):
+    """Least-squares slopes in h over each uniform ladder, and the efficiency range."""
+    slopes = []
+    for (theta, gamma0), group in table[table.status == "converged"].groupby(["theta", "gamma0"]):
+        if len(group) < 2:
+            continue
+        slope = {k: loglog_slope(group.h, group[k])
+                 for k in ("l2_error", "h1_error", "eta1", "eta2", "eta3", "eta4", "eta")}
+        slopes.append(dict(theta=theta, gamma0=gamma0, runs=len(group), **slope,
+                           efficiency_min=group.efficiency.min(), efficiency_max=group.efficiency.max(),
+                           efficiency_mean=group.efficiency.mean()))
+    return pd.DataFrame(slopes)
 
 
 def plot_aposteriori_uniform(table):
