@@ -278,3 +278,36 @@ def crosscheck():
 
 
 STUDIES["fd2d-crosscheck"] = crosscheck
+
+
+def pressure_profiles():
+    """Contact pressure along the lower disk boundary, NX = 40, 80, 160 (P2), without and
+    with the neighbour stabilization: the pressure read from badly cut elements oscillates."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2), sharey=True)
+    for ax, stab in zip(axes, ("none", "neighbour")):
+        for nx in (40, 80, 160):
+            progress(nx // 40, 4, f"P2 theta=-1 NX={nx} stabilization={stab}")
+            row, results, folder = run_point(DISK, [f"mesh.nx={nx}", "output.vtu=false",
+                                                    f"method.stabilization='{stab}'"])
+            if results is None:
+                raise DriverError(f"run NX={nx} failed: {row['message']}")
+            s = pd.read_csv(folder / "contact_pressure.csv").sort_values("x")
+            s = s[s.y < -0.2]
+            ax.plot(s.x, -s.pressure, ".-", ms=3, lw=0.8,
+                    label=f"NX = {nx}: force {results['contact']['force_on_body1'][1]:.6f}")
+        ax.set_xlabel("x on the disk boundary (lower part)")
+        ax.set_title(f"stabilization = {stab}")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8)
+    axes[0].set_ylabel("contact pressure  -sigma_n")
+    fig.suptitle("disk on slab, P2, theta = -1, gamma0 = 1/200 (make fd2d-study)")
+    fig.tight_layout()
+    fig.savefig(PLOTS_DIR / "disk_on_slab_pressure.png", dpi=110)
+    print(f"wrote {PLOTS_DIR / 'disk_on_slab_pressure.png'}")
+
+
+STUDIES["disk-pressure"] = pressure_profiles
