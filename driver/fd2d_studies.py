@@ -214,6 +214,22 @@ def stabilization():
     return table
 
 
+def theta1_stabilization():
+    """theta = 1 (symmetric, the least robust variant) with none / neighbour / ghost."""
+    ref = reference()
+    grid = [(s, nx) for s in ("none", "neighbour", "ghost") for nx in LADDER]
+    rows = []
+    for i, (stab, nx) in enumerate(grid, 1):
+        progress(i, len(grid), f"P2 theta=1 NX={nx} stabilization={stab}")
+        rows.append(run_with_errors(ref, [f"mesh.nx={nx}", "method.theta=1", f"method.stabilization='{stab}'"],
+                                    dict(degree=2, theta=1, stabilization=stab)))
+    table = pd.DataFrame(rows)
+    table.to_csv(RESULTS_DIR / "fd2d_theta1_stabilization.csv", index=False)
+    print(markdown_table(table[["stabilization", "nx", "status", "min_cut_ratio", "case_b", "case_c",
+                                "newton_iterations", "h1_body1", "h1_body2"]]))
+    return table
+
+
 def check_bars(table):
     """The issue's bars, evaluated on a convergence table (used by the tests and the README)."""
     rates = rates_of(table, ["degree", "theta"])
@@ -229,6 +245,7 @@ STUDIES = {
     "fd2d-convergence": convergence,
     "fd2d-gamma0": gamma0_sweep,
     "fd2d-stabilization": stabilization,
+    "fd2d-theta1-stabilization": theta1_stabilization,
 }
 
 

@@ -91,11 +91,24 @@ def fd2d_stabilization():
     return markdown_table(t[[c for c in cols if c in t]])
 
 
+def fd2d_theta1_stabilization():
+    t = pd.read_csv(RESULTS / "fd2d_theta1_stabilization.csv")
+    rows = []
+    for nx, group in t.groupby("nx"):
+        row = {"NX": str(int(nx)), "min cut ratio": f"{group.min_cut_ratio.iloc[0]:.2e}"}
+        for _, r in group.iterrows():
+            row[f"{r.stabilization}: H1 disk / slab"] = (f"{r.h1_body1:.3g} / {r.h1_body2:.3g}"
+                                                        if r.status == "converged" else r.status)
+        rows.append(row)
+    return markdown_table(pd.DataFrame(rows))
+
+
 def fd2d_crosscheck():
     return markdown_table(pd.read_csv(RESULTS / "fd2d_crosscheck.csv"), digits=3)
 
 
 TABLES = {
+    "fd2d_theta1_stabilization": fd2d_theta1_stabilization,
     "fd2d_crosscheck": fd2d_crosscheck,
     "foundation_newton": foundation_newton,
     "aposteriori_uniform": aposteriori_uniform,
