@@ -58,7 +58,7 @@ aposteriori-study: setup
 .PHONY: fd2d-study readme
 fd2d-study: setup
 	$(PYTHON) -m driver study fd2d-convergence fd2d-gamma0 fd2d-stabilization fd2d-theta1-stabilization \
-	    fd2d-crosscheck disk-pressure
+	    fd2d-crosscheck disk-pressure fd-aposteriori
 	$(PYTHON) -m driver readme
 
 readme:

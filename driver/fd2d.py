@@ -63,10 +63,23 @@ SCHEMA = {
         "refactor_points": Field("int", default=12, check=at_least(0),
                                  doc="re-use the factorization (GMRES) when fewer points changed"),
     },
+    "adapt": {
+        "steps": Field("int", default=0, check=at_least(0), doc="adaptmesh steps of the background mesh"),
+        "growth": Field("float", default=2.0, check=positive, doc="wanted element-count growth per step"),
+        "max_dofs": Field("int", default=200000, check=positive,
+                          doc="DOF budget: no adaptation step whose mesh would exceed it (growth x DOFs)"),
+        "eta_target": Field("float", default=0.0, check=at_least(0.0), doc="stop once eta <= this"),
+        "max_refine": Field("float", default=4.0, check=at_least(1.0)),
+        "max_coarsen": Field("float", default=2.0, check=at_least(1.0)),
+        "warm_start": Field("int", default=1, choices=(0, 1, 2),
+                            doc="Newton start after adaptation: 0 default, 1 previous active measure, "
+                                "2 previous solution"),
+    },
     "output": {
         "vtu": Field("bool", default=True),
         "pressure_csv": Field("bool", default=True),
-        "save_solution": Field("bool", default=False, doc="write meshes and DOF arrays (a reference)"),
+        "save_solution": Field("bool", default=False,
+                               doc="write meshes and DOF arrays (a reference; every step when adapting)"),
     },
 }
 
@@ -160,6 +173,14 @@ def freefem_args(scene, mesh_file=""):
     put("active0", solver["active0"])
     put("predictor_steps", solver["predictor_steps"])
     put("refactor_points", solver["refactor_points"])
+    adapt = scene["adapt"]
+    put("adapt_steps", adapt["steps"])
+    put("adapt_growth", adapt["growth"])
+    put("adapt_max_dofs", adapt["max_dofs"])
+    put("adapt_eta_target", adapt["eta_target"])
+    put("adapt_max_refine", adapt["max_refine"])
+    put("adapt_max_coarsen", adapt["max_coarsen"])
+    put("adapt_warm_start", adapt["warm_start"])
     put("vtu", int(scene["output"]["vtu"]))
     put("csv", int(scene["output"]["pressure_csv"]))
     put("save", int(scene["output"]["save_solution"]))
@@ -173,7 +194,17 @@ def prepare_mesh(scene, workdir, run_command):
 def summary_lines(results):
     contact, cut = results["contact"], results["cut"]
     centre = results["disk"]["centre_displacement"]
-    return [
+    lines = []
+    est = results.get("estimator")
+    if est:
+        lines.append("estimator: eta {eta:.4g} (eta1 {eta1:.3g}, eta2 {eta2:.3g}, eta3 {eta3:.3g}, eta4 {eta4:.3g}, "
+                     "eta5 {eta5:.3g}), zeta {zeta:.3g}".format(**est))
+    steps = results.get("steps", {})
+    if len(steps.get("dofs", [])) > 1:
+        lines.append(f"adaptation: {len(steps['dofs'])} solves, DOFs {int(steps['dofs'][0])} -> "
+                     f"{int(steps['dofs'][-1])}, eta {steps['eta'][0]:.4g} -> {steps['eta'][-1]:.4g}, "
+                     f"disk area {steps['area_body1'][0]:.6f} -> {steps['area_body1'][-1]:.6f}")
+    return lines + [
         f"bodies: {results['dofs_body1']} + {results['dofs_body2']} DOFs on the cut spaces, "
         f"areas {results['areas']['body1']:.6g} and {results['areas']['body2']:.6g}",
         f"disk centre displacement: ({centre[0]:.6g}, {centre[1]:.6g})",

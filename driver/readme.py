@@ -107,7 +107,14 @@ def fd2d_crosscheck():
     return markdown_table(pd.read_csv(RESULTS / "fd2d_crosscheck.csv"), digits=3)
 
 
+def fd_aposteriori():
+    t = pd.read_csv(RESULTS / "fd_aposteriori.csv")
+    return markdown_table(t[["mode", "step", "dofs", "eta", "eta1", "eta2", "eta3", "eta4", "eta5",
+                             "h1_body1", "h1_body2", "efficiency", "area_body1"]], digits=3)
+
+
 TABLES = {
+    "fd_aposteriori": fd_aposteriori,
     "fd2d_theta1_stabilization": fd2d_theta1_stabilization,
     "fd2d_crosscheck": fd2d_crosscheck,
     "foundation_newton": foundation_newton,
