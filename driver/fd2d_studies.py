@@ -60,6 +60,7 @@ def run_with_errors(ref, overrides, labels):
                min_cut_ratio=min(results["cut"]["min_ratio_body1"], results["cut"]["min_ratio_body2"]),
                case_a=results["cut"]["case_a"], case_b=results["cut"]["case_b"],
                case_c=results["cut"]["case_c"],
+               dropped=results["cut"].get("dropped_body1", 0) + results["cut"].get("dropped_body2", 0),
                centre_uy=results["disk"]["centre_displacement"][1])
     return out
 
@@ -191,26 +192,27 @@ def sliver_shift(nx, epsilon=1e-6):
 
 
 def stabilization():
-    """Ladder on a shifted geometry whose cut ratios go down to ~1e-6."""
+    """Ladder on a shifted geometry with sliver cuts (ratios ~1e-13 to 1e-6), theta = -1 and 1."""
     ref = reference()
-    grid = [(s, nx) for s in ("none", "neighbour", "ghost") for nx in LADDER]
+    grid = [(t, s, nx) for t in (-1, 1) for s in ("none", "neighbour", "ghost") for nx in LADDER]
     rows = []
-    for i, (stab, nx) in enumerate(grid, 1):
+    for i, (theta, stab, nx) in enumerate(grid, 1):
         shift = sliver_shift(nx)
-        progress(i, len(grid), f"P2 theta=-1 NX={nx} stabilization={stab} shift={shift:.1e}")
-        rows.append(run_with_errors(ref, [f"mesh.nx={nx}", f"method.stabilization='{stab}'",
+        progress(i, len(grid), f"P2 theta={theta} NX={nx} stabilization={stab} shift={shift:.1e}")
+        rows.append(run_with_errors(ref, [f"mesh.nx={nx}", f"method.theta={theta}",
+                                          f"method.stabilization='{stab}'",
                                           f"body1.centre=[0.0, {shift!r}]", f"body2.top={-0.25 + shift!r}",
                                           f"rigid.fix_x_points=[0.0, {shift!r}, 0.0, {0.1 + shift!r}]"],
-                                    dict(degree=2, theta=-1, stabilization=stab, shift=shift)))
+                                    dict(degree=2, theta=theta, stabilization=stab, shift=shift)))
     table = pd.DataFrame(rows)
     table.to_csv(RESULTS_DIR / "fd2d_stabilization.csv", index=False)
-    rates = rates_of(table, ["stabilization"])
+    rates = rates_of(table, ["theta", "stabilization"])
     rates.to_csv(RESULTS_DIR / "fd2d_stabilization_rates.csv", index=False)
-    print(markdown_table(table[["stabilization", "nx", "status", "min_cut_ratio", "case_a", "case_b", "case_c",
-                                "newton_iterations", "h1_body1", "h1_body2"]]))
+    print(markdown_table(table[["theta", "stabilization", "nx", "status", "min_cut_ratio", "dropped",
+                                "case_b", "case_c", "newton_iterations", "h1_body1", "h1_body2"]]))
     plot_convergence(table, "fd2d_stabilization.png",
-                     "disk on slab shifted by 1e-6 h (sliver cuts), P2, theta = -1 (make fd2d-study)",
-                     group_keys=("stabilization",), label=lambda key: f"{key[0] if isinstance(key, tuple) else key}")
+                     "disk on slab shifted by 1e-6 h (sliver cuts), P2 (make fd2d-study)",
+                     group_keys=("theta", "stabilization"), label=lambda key: f"theta={key[0]:g}, {key[1]}")
     return table
 
 

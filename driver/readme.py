@@ -86,7 +86,7 @@ def fd2d_gamma0():
 
 def fd2d_stabilization():
     t = pd.read_csv(RESULTS / "fd2d_stabilization.csv")
-    cols = ["stabilization", "nx", "status", "min_cut_ratio", "case_a", "case_b", "case_c",
+    cols = ["theta", "stabilization", "nx", "status", "min_cut_ratio", "dropped", "case_b", "case_c",
             "newton_iterations", "h1_body1", "h1_body2"]
     return markdown_table(t[[c for c in cols if c in t]])
 

@@ -81,3 +81,21 @@ def test_bad_fd_geometry_is_rejected(override, key):
     proc = run_cli("run", DISK, "--set", override)
     assert proc.returncode == 2
     assert f"'{key}" in proc.stderr and DISK in proc.stderr and "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize("stabilization", ["none", "neighbour", "ghost"])
+def test_sliver_cuts_are_dropped_not_fatal(run_scene, stabilization):
+    # Slab top 1e-6 h above a grid line: cut ratios ~1e-13 (the crash case of a plain cut space).
+    nx, shift = 20, 1e-6 / 20
+    plain = run_scene(DISK, f"mesh.nx={nx}", f"method.stabilization='{stabilization}'")
+    sliver = run_scene(DISK, f"mesh.nx={nx}", f"method.stabilization='{stabilization}'",
+                       f"body1.centre=[0.0, {shift!r}]", f"body2.top={-0.25 + shift!r}",
+                       f"rigid.fix_x_points=[0.0, {shift!r}, 0.0, {0.1 + shift!r}]")
+    cut = sliver.results["cut"]
+    assert min(cut["min_ratio_body1"], cut["min_ratio_body2"]) < 1e-9
+    assert cut["dropped_body1"] + cut["dropped_body2"] > 0
+    assert cut["extended_max_distance_over_h"] < 1e-3
+    assert sliver.results["newton"]["residual"][-1] < 1e-8
+    assert sliver.results["newton"]["iterations"] <= plain.results["newton"]["iterations"] + 2
+    assert centre_y(sliver) == pytest.approx(centre_y(plain), rel=0.02)
+    assert sliver.results["areas"]["body2"] == pytest.approx(0.25 + shift, rel=1e-9)
