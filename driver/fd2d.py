@@ -212,5 +212,6 @@ def summary_lines(results):
         f"force on disk ({contact['force_on_body1'][0]:.4g}, {contact['force_on_body1'][1]:.6g}), "
         f"balance error {contact['force_balance_error']:.1e}, max pressure {contact['max_pressure']:.4g}",
         f"cut elements: min ratio {cut['min_ratio_body1']:.2e} (disk), {cut['min_ratio_body2']:.2e} (slab); "
-        f"stabilization {cut['stabilization']}: cases a/b/c = {cut['case_a']}/{cut['case_b']}/{cut['case_c']}",
+        f"stabilization {cut['stabilization']}: cases a/b/c = {cut['case_a']}/{cut['case_b']}/{cut['case_c']}, "
+        f"sliver elements dropped {cut.get('dropped_body1', 0)} + {cut.get('dropped_body2', 0)}",
     ]
