@@ -6,7 +6,7 @@ y = a + b x that cuts the mesh.
 """
 
 from driver.errors import SceneError
-from driver.schema import Field, at_least, open_interval, positive
+from driver.schema import ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_adapt
 
 STABILIZATIONS = ("none", "neighbour", "ghost")
 
@@ -63,18 +63,9 @@ SCHEMA = {
         "refactor_points": Field("int", default=12, check=at_least(0),
                                  doc="re-use the factorization (GMRES) when fewer points changed"),
     },
-    "adapt": {
-        "steps": Field("int", default=0, check=at_least(0), doc="adaptmesh steps of the background mesh"),
-        "growth": Field("float", default=2.0, check=positive, doc="wanted element-count growth per step"),
-        "max_dofs": Field("int", default=200000, check=positive,
-                          doc="DOF budget: no adaptation step whose mesh would exceed it (growth x DOFs)"),
-        "eta_target": Field("float", default=0.0, check=at_least(0.0), doc="stop once eta <= this"),
-        "max_refine": Field("float", default=4.0, check=at_least(1.0)),
-        "max_coarsen": Field("float", default=2.0, check=at_least(1.0)),
-        "warm_start": Field("int", default=1, choices=(0, 1, 2),
-                            doc="Newton start after adaptation: 0 default, 1 previous active measure, "
-                                "2 previous solution"),
-    },
+    "adapt": dict(ADAPT_SCHEMA, warm_start=Field(
+        "int", default=1, choices=(0, 1, 2),
+        doc="Newton start after adaptation: 0 default, 1 previous active measure, 2 previous solution")),
     "output": {
         "vtu": Field("bool", default=True),
         "pressure_csv": Field("bool", default=True),
@@ -137,10 +128,8 @@ def check(scene, source):
 def freefem_args(scene, mesh_file=""):
     geo, meth, solver = scene["geometry"], scene["method"], scene["solver"]
     disk, slab = scene["body1"], scene["body2"]
-    args = [f"-Ddegree={meth['degree']}"]
-
-    def put(key, value):
-        args.extend([f"-{key}", repr(value) if isinstance(value, float) else str(value)])
+    args = FreeFemFlags([f"-Ddegree={meth['degree']}"])
+    put = args.put
 
     put("name", scene["scene"]["name"])
     for key in ("xmin", "xmax", "ymin", "ymax"):
@@ -173,14 +162,8 @@ def freefem_args(scene, mesh_file=""):
     put("active0", solver["active0"])
     put("predictor_steps", solver["predictor_steps"])
     put("refactor_points", solver["refactor_points"])
-    adapt = scene["adapt"]
-    put("adapt_steps", adapt["steps"])
-    put("adapt_growth", adapt["growth"])
-    put("adapt_max_dofs", adapt["max_dofs"])
-    put("adapt_eta_target", adapt["eta_target"])
-    put("adapt_max_refine", adapt["max_refine"])
-    put("adapt_max_coarsen", adapt["max_coarsen"])
-    put("adapt_warm_start", adapt["warm_start"])
+    put_adapt(args, scene["adapt"])
+    put("adapt_warm_start", scene["adapt"]["warm_start"])
     put("vtu", int(scene["output"]["vtu"]))
     put("csv", int(scene["output"]["pressure_csv"]))
     put("save", int(scene["output"]["save_solution"]))

@@ -3,7 +3,8 @@
 from pathlib import Path
 
 from driver.errors import SceneError
-from driver.schema import Field, TableList, at_least, open_interval, positive
+from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, TableList, at_least, open_interval,
+                           positive, put_adapt)
 
 BOX_LABELS = {"bottom": 1, "right": 2, "top": 3, "left": 4}
 COMPONENT_BITS = {"x": 1, "y": 2, "xy": 3}
@@ -51,15 +52,7 @@ SCHEMA = {
         "newton_tol": Field("float", default=1e-9, check=positive),
         "newton_max": Field("int", default=30, check=at_least(1)),
     },
-    "adapt": {
-        "steps": Field("int", default=0, check=at_least(0), doc="adaptmesh steps after the first solve"),
-        "growth": Field("float", default=2.0, check=positive, doc="wanted element-count growth per step"),
-        "max_dofs": Field("int", default=200000, check=positive,
-                          doc="DOF budget: no adaptation step whose mesh would exceed it (growth x DOFs)"),
-        "eta_target": Field("float", default=0.0, check=at_least(0.0), doc="stop once eta <= this"),
-        "max_refine": Field("float", default=4.0, check=at_least(1.0)),
-        "max_coarsen": Field("float", default=2.0, check=at_least(1.0)),
-    },
+    "adapt": ADAPT_SCHEMA,
     "reference": {
         "folder": Field("str", default="", doc="a run saved with output.save_solution (P2): errors against it"),
     },
@@ -129,10 +122,8 @@ def label_id(label, kind, where):
 def freefem_args(scene, mesh_file=""):
     """Command-line flags of contact_foundation_2d.edp for this scene."""
     geo, mat, meth = scene["geometry"], scene["material"], scene["method"]
-    args = [f"-Ddegree={meth['degree']}"]
-
-    def put(key, value):
-        args.extend([f"-{key}", repr(value) if isinstance(value, float) else str(value)])
+    args = FreeFemFlags([f"-Ddegree={meth['degree']}"])
+    put = args.put
 
     put("name", scene["scene"]["name"])
     put("meshfile", mesh_file)
@@ -174,13 +165,7 @@ def freefem_args(scene, mesh_file=""):
         put(f"point{i}_fix", COMPONENT_BITS[pc["components"]])
     put("newton_tol", scene["solver"]["newton_tol"])
     put("newton_max", scene["solver"]["newton_max"])
-    adapt = scene["adapt"]
-    put("adapt_steps", adapt["steps"])
-    put("adapt_growth", adapt["growth"])
-    put("adapt_max_dofs", adapt["max_dofs"])
-    put("adapt_eta_target", adapt["eta_target"])
-    put("adapt_max_refine", adapt["max_refine"])
-    put("adapt_max_coarsen", adapt["max_coarsen"])
+    put_adapt(args, scene["adapt"])
     if scene["reference"]["folder"]:
         put("reference", scene["reference"]["folder"])
     put("save", int(scene["output"]["save_solution"]))

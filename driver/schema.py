@@ -109,3 +109,27 @@ def validate(data, schema, source, prefix=""):
         else:
             out[key] = spec.default
     return out
+
+
+class FreeFemFlags(list):
+    """FreeFEM command-line arguments: -key value pairs, floats in full precision."""
+
+    def put(self, key, value):
+        self.extend([f"-{key}", repr(value) if isinstance(value, float) else str(value)])
+
+
+# Estimator-driven adaptation, the same keys for every script that adapts.
+ADAPT_SCHEMA = {
+    "steps": Field("int", default=0, check=at_least(0), doc="adaptmesh steps after the first solve"),
+    "growth": Field("float", default=2.0, check=positive, doc="wanted element-count growth per step"),
+    "max_dofs": Field("int", default=200000, check=positive,
+                      doc="DOF budget: no adaptation step whose mesh would exceed it (growth x DOFs)"),
+    "eta_target": Field("float", default=0.0, check=at_least(0.0), doc="stop once eta <= this"),
+    "max_refine": Field("float", default=4.0, check=at_least(1.0)),
+    "max_coarsen": Field("float", default=2.0, check=at_least(1.0)),
+}
+
+
+def put_adapt(flags, adapt):
+    for key in ADAPT_SCHEMA:
+        flags.put(f"adapt_{key}", adapt[key])
