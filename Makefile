@@ -63,3 +63,9 @@ fd2d-study: setup
 
 readme:
 	$(PYTHON) -m driver readme
+
+# Speed against error on the disk on slab (timings: ratios and medians belong here,
+# never in tests): results/bench.csv, results/bench_scaling.csv, plots/speed_vs_error.png.
+.PHONY: bench
+bench: setup
+	$(PYTHON) -m driver study bench

@@ -113,7 +113,20 @@ def fd_aposteriori():
                              "h1_body1", "h1_body2", "efficiency", "area_body1"]], digits=3)
 
 
+def bench():
+    t = pd.read_csv(RESULTS / "bench.csv")
+    t = t[t.theta == -1]
+    return markdown_table(t[["method", "nx", "dofs", "newton_iterations", "wall_s", "peak_rss_mb", "h1_error"]],
+                          digits=3)
+
+
+def bench_scaling():
+    return markdown_table(pd.read_csv(RESULTS / "bench_scaling.csv"), digits=3)
+
+
 TABLES = {
+    "bench": bench,
+    "bench_scaling": bench_scaling,
     "fd_aposteriori": fd_aposteriori,
     "fd2d_theta1_stabilization": fd2d_theta1_stabilization,
     "fd2d_crosscheck": fd2d_crosscheck,

@@ -12,6 +12,7 @@ import os
 import re
 import shutil
 import subprocess
+import threading
 import time
 from pathlib import Path
 
@@ -63,6 +64,19 @@ def freefem_message(log_text):
     return "\n  ".join(keep[-8:]) if keep else "\n  ".join(log_text.strip().splitlines()[-8:])
 
 
+def watch_peak_memory(pid, result):
+    """Poll the kernel's high-water mark of a process (VmHWM, kB) until it exits."""
+    path = Path(f"/proc/{pid}/status")
+    while True:
+        try:
+            for line in path.read_text().splitlines():
+                if line.startswith("VmHWM:"):
+                    result[0] = max(result[0], int(line.split()[1]))
+        except (OSError, ValueError):
+            return
+        time.sleep(0.05)
+
+
 def run_id(scene, args):
     digest = hashlib.sha1(" ".join(args).encode()).hexdigest()[:8]
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
@@ -101,6 +115,9 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
     with open(staging / "freefem.log", "w") as log:
         proc = subprocess.Popen(launch, cwd=REPO, env=freefem_env(), stdout=subprocess.PIPE,
                                 stderr=subprocess.STDOUT, text=True)
+        peak_kb = [0]
+        watcher = threading.Thread(target=watch_peak_memory, args=(proc.pid, peak_kb), daemon=True)
+        watcher.start()
         for line in proc.stdout:
             log.write(line)
             if echo is not None:
@@ -138,6 +155,7 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
     if results.get("status") != "converged":
         fail(NewtonError(f"scene {name}: run status is {results.get('status')!r}"))
     results["wall_s"] = wall
+    results["peak_rss_mb"] = peak_kb[0] / 1024.0
     results_path.write_text(json.dumps(results, indent=1))
     if final.exists():
         shutil.rmtree(final)
