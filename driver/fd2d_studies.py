@@ -157,6 +157,12 @@ def gamma0_sweep():
     table.to_csv(RESULTS_DIR / "fd2d_gamma0.csv", index=False)
     print(markdown_table(table[["theta", "gamma0", "status", "newton_iterations", "h1_body1", "h1_body2"]]))
 
+    plot_gamma0(table)
+    return table
+
+
+def plot_gamma0(table):
+    """H1 errors and Newton iterations against gamma0; failed runs marked per theta."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -168,9 +174,9 @@ def gamma0_sweep():
         line, = ax.loglog(ok.gamma0, ok.h1_body1, "o-", label=f"theta={theta:g}, disk")
         ax.loglog(ok.gamma0, ok.h1_body2, "s--", color=line.get_color(), label=f"theta={theta:g}, slab")
         ax2.semilogx(ok.gamma0, ok.newton_iterations, "o-", color=line.get_color(), label=f"theta={theta:g}")
-        if len(failed):
-            ax2.semilogx(failed.gamma0, [0] * len(failed), "x", ms=9, color=line.get_color(),
-                         label=f"theta={theta:g}: not converged")
+        if len(failed):       # one row of crosses per theta, below zero
+            ax2.semilogx(failed.gamma0, [-0.7 * (theta + 2)] * len(failed), "x", ms=9,
+                         color=line.get_color(), label=f"theta={theta:g}: not converged")
     ax.set_xlabel("gamma0")
     ax.set_title("relative H1 error, P2, h = 1/90")
     ax.grid(True, which="both", alpha=0.3)
@@ -183,7 +189,6 @@ def gamma0_sweep():
     fig.tight_layout()
     fig.savefig(PLOTS_DIR / "fd2d_gamma0.png", dpi=110)
     print(f"wrote {PLOTS_DIR / 'fd2d_gamma0.png'}")
-    return table
 
 
 def sliver_shift(nx, epsilon=1e-6):
