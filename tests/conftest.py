@@ -19,6 +19,12 @@ def run_cli(*args, cwd=REPO):
                           capture_output=True, text=True)
 
 
+def run_freefem(script, *args):
+    """FreeFem++ -nw on a script of freefem/ from the repository root (never raises)."""
+    return subprocess.run(["FreeFem++", "-nw", "-v", "0", f"freefem/{script}", *map(str, args)],
+                          cwd=REPO, capture_output=True, text=True)
+
+
 class Run:
     def __init__(self, folder):
         self.folder = Path(folder)

@@ -1,11 +1,10 @@
 """Residual estimators (fitted mesh) vanish where they must; adaptation lowers eta."""
 
 import json
-import subprocess
 
 import pytest
 
-from conftest import REPO
+from conftest import run_freefem
 
 
 def test_estimators_vanish_on_the_patch_test(run_scene):
@@ -44,9 +43,8 @@ def test_error_routine_against_itself_and_a_known_shift(run_scene, tmp_path):
     # A constant shift s of the x-displacement: L2 and H1 errors are |s| |Omega|^(1/2) = |s|.
     shift = 1e-4
     out = tmp_path / "shifted"
-    proc = subprocess.run(["FreeFem++", "-nw", "-v", "0", "freefem/contact_foundation_2d.edp",
-                           "-nx", "8", "-reference", str(ref.folder), "-error_shift_x", str(shift),
-                           "-outdir", str(out), "-vtu", "0"], cwd=REPO, capture_output=True, text=True)
+    proc = run_freefem("contact_foundation_2d.edp", "-nx", 8, "-reference", ref.folder,
+                       "-error_shift_x", shift, "-outdir", out, "-vtu", 0)
     assert proc.returncode == 0, proc.stdout[-2000:]
     steps = json.loads((out / "results.json").read_text())["steps"]
     assert steps["l2_error"][0] == pytest.approx(shift, rel=1e-6)

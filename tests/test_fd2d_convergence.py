@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-from conftest import REPO, run_cli
+from conftest import run_cli, run_freefem
 
 DISK = "cases/disk_on_slab.toml"
 LADDER = (20, 40, 80)
@@ -29,12 +29,8 @@ def saved_run(folder, *overrides):
 
 
 def errors(ref, run, *extra):
-    import subprocess
-
     out = run / "errors.json"
-    proc = subprocess.run(["FreeFem++", "-nw", "-v", "0", "freefem/fd_error_2d.edp", "-ref", str(ref),
-                           "-run", str(run), "-out", str(out), *extra], cwd=REPO,
-                          capture_output=True, text=True)
+    proc = run_freefem("fd_error_2d.edp", "-ref", ref, "-run", run, "-out", out, *extra)
     assert proc.returncode == 0, proc.stdout[-2000:]
     return json.loads(out.read_text())
 

@@ -4,7 +4,7 @@ import shutil
 
 import pytest
 
-from conftest import REPO, run_cli
+from conftest import REPO, run_cli, run_freefem
 
 SCENE = "cases/square_slip_separation.toml"
 
@@ -91,8 +91,5 @@ def test_newton_failure_is_reported(tmp_path):
 
 def test_freefem_direct_input_check():
     # The scripts check their own parameters when run directly, without the driver.
-    import subprocess
-    proc = subprocess.run(["FreeFem++", "-nw", "-v", "0", "freefem/contact_foundation_2d.edp",
-                           "-gamma0", "-1", "-outdir", "runs/test-direct"],
-                          cwd=REPO, capture_output=True, text=True)
+    proc = run_freefem("contact_foundation_2d.edp", "-gamma0", -1, "-outdir", "runs/test-direct")
     assert proc.returncode == 2 and "gamma0 must be > 0" in proc.stdout + proc.stderr
