@@ -13,7 +13,8 @@ import pandas as pd
 from driver.errors import DriverError
 from driver.runner import REPO, run_freefem_tool, run_scene
 from driver.scene import load_scene
-from driver.studies import PLOTS_DIR, RESULTS_DIR, loglog_slope, markdown_table, progress, run_point
+from driver.studies import (PLOTS_DIR, RESULTS_DIR, cached_reference, loglog_slope, markdown_table, progress,
+                            run_point)
 
 DISK = REPO / "cases" / "disk_on_slab.toml"
 REFERENCE_NX = int(os.environ.get("FD2D_REFERENCE_NX", "320"))
@@ -29,14 +30,14 @@ SEED_RATES = {
 
 
 def reference(nx=REFERENCE_NX):
-    """P2, theta = -1, gamma0 = 1/200 at NX = nx, saved once under runs/reference/."""
+    """P2, theta = -1, gamma0 = 1/200 at NX = nx."""
     folder = REPO / "runs" / "reference" / f"disk_on_slab_p2_nx{nx}"
-    if (folder / "solution_meta.txt").is_file() and (folder / "results.json").is_file():
-        return folder
-    progress(0, 0, f"computing the disk-on-slab reference (P2, NX = {nx}) in {folder}")
-    scene, module = load_scene(DISK, [f"mesh.nx={nx}", "output.save_solution=true", *QUIET])
-    run_scene(scene, module, out_dir=folder)
-    return folder
+
+    def compute():
+        scene, module = load_scene(DISK, [f"mesh.nx={nx}", "output.save_solution=true", *QUIET])
+        run_scene(scene, module, out_dir=folder)
+
+    return cached_reference(folder, f"the disk-on-slab reference (P2, NX = {nx})", compute)
 
 
 def errors_against(ref, run_folder):
@@ -261,16 +262,16 @@ FITTED_H = 320          # fitted meshes of the two bodies, h = 1/320 (P2)
 
 
 def fitted_reference():
-    """The disk on slab on body-fitted gmsh meshes (P2, theta = -1), saved once."""
+    """The disk on slab on body-fitted gmsh meshes (P2, theta = -1)."""
     folder = REPO / "runs" / "reference" / f"disk_on_slab_fitted_h{FITTED_H}"
-    if (folder / "results.json").is_file() and (folder / "solution_meta.txt").is_file():
-        return folder
-    progress(0, 0, f"computing the body-fitted disk on slab (P2, h = 1/{FITTED_H}) in {folder}")
-    folder.mkdir(parents=True, exist_ok=True)
-    run_freefem_tool("fitted_two_body_2d.edp", ["-h", repr(1.0 / FITTED_H), "-save", "1", "-vtu", "0",
-                                                "-csv", "0", "-outdir", str(folder)],
-                     folder / "results.json", "body-fitted disk on slab")
-    return folder
+
+    def compute():
+        folder.mkdir(parents=True, exist_ok=True)
+        run_freefem_tool("fitted_two_body_2d.edp", ["-h", repr(1.0 / FITTED_H), "-save", "1", "-vtu", "0",
+                                                    "-csv", "0", "-outdir", str(folder)],
+                         folder / "results.json", "body-fitted disk on slab")
+
+    return cached_reference(folder, f"the body-fitted disk on slab (P2, h = 1/{FITTED_H})", compute)
 
 
 def crosscheck():

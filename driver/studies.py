@@ -123,15 +123,22 @@ SQUARE_REFERENCE_SETTINGS = ["mesh.nx=16", "adapt.steps=30", "adapt.growth=2.5",
 UNIFORM_NX = (8, 16, 32, 64, 80)
 
 
+def cached_reference(folder, what, compute):
+    """A reference run kept in runs/reference/: computed once. Its results.json is
+    written last and atomically, so its presence means the run is complete."""
+    if not (folder / "results.json").is_file():
+        print(f"computing {what} in {folder}", file=sys.stderr, flush=True)
+        compute()
+    return folder
+
+
 def square_reference():
-    """Adaptive P2, theta = -1, about 1e6 DOFs; made once and kept in runs/reference/."""
-    if (SQUARE_REFERENCE / "u.txt").is_file():
-        return SQUARE_REFERENCE
-    print(f"computing the square reference in {SQUARE_REFERENCE} (adaptive P2, ~1e6 DOFs)",
-          file=sys.stderr, flush=True)
-    scene, module = load_scene(SQUARE, SQUARE_REFERENCE_SETTINGS)
-    run_scene(scene, module, out_dir=SQUARE_REFERENCE)
-    return SQUARE_REFERENCE
+    """Adaptive P2, theta = -1, about 1e6 DOFs."""
+    def compute():
+        scene, module = load_scene(SQUARE, SQUARE_REFERENCE_SETTINGS)
+        run_scene(scene, module, out_dir=SQUARE_REFERENCE)
+
+    return cached_reference(SQUARE_REFERENCE, "the square reference (adaptive P2, ~1e6 DOFs)", compute)
 
 
 def estimator_rows(results, **labels):
