@@ -62,6 +62,8 @@ SCHEMA = {
         "predictor_steps": Field("int", default=4, check=at_least(0)),
         "refactor_points": Field("int", default=12, check=at_least(0),
                                  doc="re-use the factorization (GMRES) when fewer points changed"),
+        "time_final_solve": Field("bool", default=False,
+                                  doc="benchmarks: time one extra factorization and solve of the final system"),
     },
     "adapt": dict(ADAPT_SCHEMA, warm_start=Field(
         "int", default=1, choices=(0, 1, 2),
@@ -69,6 +71,8 @@ SCHEMA = {
     "output": {
         "vtu": Field("bool", default=True),
         "pressure_csv": Field("bool", default=True),
+        "estimators": Field("bool", default=True,
+                            doc="residual estimators eta_1..eta_5 (needed by adapt.steps > 0)"),
         "save_solution": Field("bool", default=False,
                                doc="write meshes and DOF arrays (a reference; every step when adapting)"),
     },
@@ -119,6 +123,8 @@ def check(scene, source):
         if not all(geo["ymin"] <= y < slab["top"] for y in ends):
             raise SceneError(f"{source}: key 'body2.bottom_line': the line y = {a:g} + {b:g} x must cross "
                              f"the box between its bottom and the slab top")
+    if scene["adapt"]["steps"] > 0 and not scene["output"]["estimators"]:
+        raise SceneError(f"{source}: key 'output.estimators': adaptation (adapt.steps > 0) needs the estimators")
     fix = scene["rigid"]["fix_x_points"]
     for px, py in (fix[:2], fix[2:]):
         if (px - cx) ** 2 + (py - cy) ** 2 >= r ** 2:
@@ -162,11 +168,13 @@ def freefem_args(scene, mesh_file=""):
     put("active0", solver["active0"])
     put("predictor_steps", solver["predictor_steps"])
     put("refactor_points", solver["refactor_points"])
+    put("time_final_solve", int(solver["time_final_solve"]))
     put_adapt(args, scene["adapt"])
     put("adapt_warm_start", scene["adapt"]["warm_start"])
     put("vtu", int(scene["output"]["vtu"]))
     put("csv", int(scene["output"]["pressure_csv"]))
     put("save", int(scene["output"]["save_solution"]))
+    put("estimators", int(scene["output"]["estimators"]))
     return args
 
 
