@@ -1,9 +1,19 @@
-"""Speed against error on the disk on slab (make bench): one row per solve with DOFs,
-Newton iterations, wall time and CPU time by phase, peak memory, and the relative H1
-error against the P2 NX = 320 reference. Timing lives here, never in tests.
+"""Speed against error on the disk on slab (make bench). Timing lives here, never in tests.
+
+Three tables, all from runs made by this module:
+- results/bench.csv: one row per solve (uniform P1/P2 ladders and the adaptive P2
+  loop) with DOFs, Newton iterations, wall time, CPU time by phase, peak memory
+  and the relative H1 error against the P2 NX = 320 reference;
+- results/bench_scaling.csv: least-squares exponent of each phase's time against DOFs;
+- results/bench_newton.csv: Newton iterations over theta x gamma0 x NX x degree;
+- results/bench_targets.csv: issue #5's targets with the measured values.
+Wall times on a shared machine are noisy: the target run is repeated and its
+median reported together with the load average at the time.
 """
 
+import os
 import platform
+import statistics
 
 import numpy as np
 import pandas as pd
@@ -14,6 +24,14 @@ from driver.studies import PLOTS_DIR, RESULTS_DIR, loglog_slope, markdown_table,
 
 PHASES = ("geometry", "assembly", "newton_contact_assembly", "newton_factor_solve", "estimators", "output")
 LADDER = (10, 20, 40, 80, 160)
+NEWTON_THETAS = (1, 0, -1)
+NEWTON_GAMMA0S = (1 / 400, 1 / 200, 1 / 100, 1 / 50, 1 / 25, 1 / 10)
+TARGET_REPEATS = 5
+# Uniform runs solve only: the estimators (a third of a P2 run) are measured apart.
+SOLVE_ONLY = [*QUIET, "output.estimators=false"]
+ADAPTIVE = ["mesh.nx=20", "adapt.steps=6", "method.stabilization='ghost'"]
+# The peer figure quoted by the issue (GetFEM 5.4, Python, P2, theta = -1, NX = 80).
+PEER = "GetFEM 5.4 (Python): 33 Newton iterations, 21 s assembly + solve"
 
 
 def machine():
@@ -25,9 +43,21 @@ def machine():
                 break
     except OSError:
         pass
-    import os
-
     return f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}"
+
+
+def load_average():
+    try:
+        return os.getloadavg()[0]
+    except OSError:
+        return float("nan")
+
+
+def checked_point(overrides, what):
+    row, results, folder = run_point(DISK, overrides)
+    if results is None:
+        raise DriverError(f"bench run failed ({what}): {row['message']}")
+    return row, results, folder
 
 
 def bench_row(method, results, err, wall, extra=None):
@@ -42,24 +72,23 @@ def bench_row(method, results, err, wall, extra=None):
     return row
 
 
-def bench():
-    ref = reference()
+def uniform_rows(ref):
     rows = []
     grid = [(d, -1, nx) for d in (1, 2) for nx in LADDER] + [(2, t, 80) for t in (1, 0)]
     for i, (degree, theta, nx) in enumerate(grid, 1):
-        progress(i, len(grid) + 1, f"uniform P{degree} theta={theta} NX={nx}")
-        row, results, folder = run_point(DISK, [f"mesh.nx={nx}", f"method.degree={degree}",
-                                                f"method.theta={theta}", "output.save_solution=true", *QUIET])
-        if results is None:
-            raise DriverError(f"bench run failed: {row['message']}")
+        progress(i, len(grid), f"uniform P{degree} theta={theta} NX={nx}")
+        row, results, folder = checked_point([f"mesh.nx={nx}", f"method.degree={degree}", f"method.theta={theta}",
+                                              "output.save_solution=true", *SOLVE_ONLY], f"P{degree} NX={nx}")
         rows.append(bench_row(f"uniform P{degree}", results, errors_against(ref, folder), row["wall_s"]))
-    progress(len(grid) + 1, len(grid) + 1, "adaptive P2 (ghost) from NX=20")
-    row, results, folder = run_point(DISK, ["mesh.nx=20", "adapt.steps=6", "method.stabilization='ghost'",
-                                            "output.save_solution=true", *QUIET])
-    if results is None:
-        raise DriverError(f"adaptive bench run failed: {row['message']}")
+    return rows
+
+
+def adaptive_rows(ref):
+    progress(1, 1, "adaptive P2 (ghost) from NX=20")
+    row, results, folder = checked_point([*ADAPTIVE, "output.save_solution=true", *QUIET], "adaptive P2")
     steps = results["steps"]
     elapsed = np.cumsum(steps["cpu_s"])
+    rows = []
     for k in range(len(steps["dofs"])):
         err = errors_against(ref, folder / f"step_{k}")
         rows.append(dict(method="adaptive P2 (ghost)", degree=2, theta=-1, nx=20, step=k,
@@ -67,9 +96,10 @@ def bench():
                          wall_s=float(elapsed[k]) * row["wall_s"] / max(elapsed[-1], 1e-300),
                          peak_rss_mb=results.get("peak_rss_mb"),
                          h1_error=float(np.hypot(err["h1_body1"], err["h1_body2"]))))
-    table = pd.DataFrame(rows)
-    RESULTS_DIR.mkdir(exist_ok=True)
-    table.to_csv(RESULTS_DIR / "bench.csv", index=False)
+    return rows
+
+
+def scaling_table(table):
     scaling = []
     for method, group in table[table.method.str.startswith("uniform") & (table.theta == -1)].groupby("method"):
         big = group[group.dofs >= 5000]
@@ -78,12 +108,83 @@ def bench():
             if (values > 0).all() and len(big) >= 2:
                 scaling.append(dict(method=method, quantity=column,
                                     exponent=loglog_slope(big.dofs, values), runs=len(big)))
-    scaling = pd.DataFrame(scaling)
-    scaling.to_csv(RESULTS_DIR / "bench_scaling.csv", index=False)
-    print(markdown_table(table[["method", "theta", "nx", "dofs", "newton_iterations", "wall_s",
-                                "peak_rss_mb", "h1_error"]]))
-    print(markdown_table(scaling, digits=3))
+    return pd.DataFrame(scaling)
 
+
+def newton_grid():
+    """Newton iterations from the default start over theta x gamma0 x NX x degree."""
+    grid = [(d, nx, t, g) for d in (1, 2) for nx in LADDER for t in NEWTON_THETAS for g in NEWTON_GAMMA0S]
+    rows = []
+    for i, (degree, nx, theta, gamma0) in enumerate(grid, 1):
+        progress(i, len(grid), f"Newton grid P{degree} NX={nx} theta={theta} gamma0={gamma0:.4g}")
+        row, results, _ = run_point(DISK, [f"mesh.nx={nx}", f"method.degree={degree}", f"method.theta={theta}",
+                                           f"method.gamma0={gamma0}", *SOLVE_ONLY])
+        rows.append(dict(degree=degree, nx=nx, theta=theta, gamma0=gamma0, status=row["status"],
+                         newton_iterations=row.get("newton_iterations"), message=row.get("message", "")))
+    table = pd.DataFrame(rows)
+    table.to_csv(RESULTS_DIR / "bench_newton.csv", index=False)
+    return table
+
+
+def timed_target_runs():
+    """NX = 80, P2, theta = -1, default scene outputs: median wall time of repeated runs,
+    without and with the estimators; and one run per theta timing an extra
+    factorization of the final system (the Newton-loop ratio), plus NX = 160."""
+    walls = {}
+    for label, extra in (("solve", ["output.estimators=false"]), ("with estimators", [])):
+        values = []
+        for i in range(TARGET_REPEATS):
+            progress(i + 1, TARGET_REPEATS, f"target run NX=80 P2 theta=-1 ({label})")
+            row, _, _ = checked_point(["mesh.nx=80", "method.degree=2", "method.theta=-1", *extra], label)
+            values.append(row["wall_s"])
+        walls[label] = values
+    ratios = []
+    for nx, theta in ((80, -1), (80, 0), (80, 1), (160, -1)):
+        progress(1, 1, f"Newton-loop ratio NX={nx} theta={theta}")
+        _, results, _ = checked_point([f"mesh.nx={nx}", "method.degree=2", f"method.theta={theta}",
+                                       "solver.time_final_solve=true", *SOLVE_ONLY], "ratio")
+        newton = results["newton"]
+        unit = newton["final_factor_solve_s"]
+        loop = results["timings_cpu_s"]["newton"]
+        ratios.append(dict(nx=nx, theta=theta, iterations=newton["iterations"],
+                           factorizations=newton["factorizations"], loop_cpu_s=loop, factor_solve_cpu_s=unit,
+                           ratio=loop / (newton["iterations"] * unit)))
+    return walls, pd.DataFrame(ratios)
+
+
+def targets_table(walls, ratios, newton, table):
+    solve, with_est = statistics.median(walls["solve"]), statistics.median(walls["with estimators"])
+    converged = newton[newton.status == "converged"]
+    worst = newton.newton_iterations.max() if len(converged) == len(newton) else float("inf")
+    uniform160 = table[(table.method == "uniform P2") & (table.nx == 160) & (table.theta == -1)].iloc[0]
+    adaptive = table[table.method.str.startswith("adaptive")].sort_values("wall_s")
+    reached = adaptive[adaptive.h1_error <= uniform160.h1_error]
+    adaptive_wall = reached.wall_s.iloc[0] if len(reached) else float("inf")
+    adaptive_what = (f"step {int(reached.step.iloc[0])}, {int(reached.dofs.iloc[0])} DOFs, "
+                     f"H1 {reached.h1_error.iloc[0]:.3g}" if len(reached) else "never reached")
+    rows = [
+        dict(target="NX=80 P2 theta=-1, whole FreeFEM run (solve, default outputs)", bound="<= 3 s wall",
+             measured=f"{solve:.2f} s (median of {len(walls['solve'])}: "
+                      + ", ".join(f"{w:.2f}" for w in walls["solve"]) + ")", met=solve <= 3.0),
+        dict(target="same, with the estimators eta_1..eta_5", bound="(no target)",
+             measured=f"{with_est:.2f} s (median of {len(walls['with estimators'])})", met=True),
+        dict(target="Newton iterations, theta in {1,0,-1}, gamma0 in [1/400,1/10], NX 10..160, P1 and P2",
+             bound="<= 8", measured=f"max {worst:g} over {len(newton)} runs, "
+                                    f"{len(newton) - len(converged)} failed", met=worst <= 8),
+        dict(target="Newton loop / (iterations x one factorization+solve of the final system)",
+             bound="<= 1.5", measured=", ".join(f"NX={r.nx} theta={r.theta:g}: {r.ratio:.2f}"
+                                                for r in ratios.itertuples()),
+             met=bool((ratios.ratio <= 1.5).all())),
+        dict(target="adaptive P2 reaches the uniform P2 NX=160 H1 error "
+                    f"({uniform160.h1_error:.3g}) in less wall time",
+             bound=f"< {uniform160.wall_s:.1f} s (uniform NX=160)",
+             measured=f"{adaptive_wall:.1f} s ({adaptive_what})", met=adaptive_wall < uniform160.wall_s),
+        dict(target="peer (quoted by the issue, not run here)", bound="", measured=PEER, met=True),
+    ]
+    return pd.DataFrame(rows)
+
+
+def plot(table):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -96,9 +197,31 @@ def bench():
     ax.set_ylabel("relative H1 error (both bodies)")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
-    ax.set_title(f"disk on slab, theta = -1: error against time\n{machine()}", fontsize=9)
+    ax.set_title(f"disk on slab, theta = -1: error against time (make bench)\n{machine()}", fontsize=9)
     fig.tight_layout()
     PLOTS_DIR.mkdir(exist_ok=True)
     fig.savefig(PLOTS_DIR / "speed_vs_error.png", dpi=110)
     print(f"wrote {PLOTS_DIR / 'speed_vs_error.png'}")
+
+
+def bench():
+    ref = reference()
+    RESULTS_DIR.mkdir(exist_ok=True)
+    load_before = load_average()
+    walls, ratios = timed_target_runs()
+    table = pd.DataFrame(uniform_rows(ref) + adaptive_rows(ref))
+    table.to_csv(RESULTS_DIR / "bench.csv", index=False)
+    scaling = scaling_table(table)
+    scaling.to_csv(RESULTS_DIR / "bench_scaling.csv", index=False)
+    newton = newton_grid()
+    targets = targets_table(walls, ratios, newton, table)
+    targets["machine"] = machine()
+    targets["load_average"] = f"{load_before:.2f} before, {load_average():.2f} after"
+    targets.to_csv(RESULTS_DIR / "bench_targets.csv", index=False)
+    print(markdown_table(table[["method", "theta", "nx", "dofs", "newton_iterations", "wall_s",
+                                "peak_rss_mb", "h1_error"]]))
+    print(markdown_table(scaling, digits=3))
+    print(markdown_table(ratios, digits=3))
+    print(markdown_table(targets[["target", "bound", "measured", "met"]]))
+    plot(table)
     return table

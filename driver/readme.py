@@ -124,9 +124,32 @@ def bench_scaling():
     return markdown_table(pd.read_csv(RESULTS / "bench_scaling.csv"), digits=3)
 
 
+def bench_targets():
+    t = pd.read_csv(RESULTS / "bench_targets.csv")
+    t["met"] = t.met.map({True: "yes", False: "**no**"})
+    return markdown_table(t[["target", "bound", "measured", "met"]])
+
+
+def bench_newton():
+    """Newton iterations per (degree, theta) and gamma0: the largest over the NX ladder."""
+    t = pd.read_csv(RESULTS / "bench_newton.csv")
+    rows = []
+    for (degree, theta), group in t.groupby(["degree", "theta"], sort=False):
+        row = {"P": degree, "theta": theta}
+        for gamma0, cell in group.groupby("gamma0", sort=False):
+            failed = cell[cell.status != "converged"]
+            text = f"{int(cell.newton_iterations.max())}" if failed.empty else \
+                f"fails at NX {' '.join(str(n) for n in failed.nx)}"
+            row[f"gamma0 = 1/{1 / gamma0:.0f}"] = text
+        rows.append(row)
+    return markdown_table(pd.DataFrame(rows))
+
+
 TABLES = {
     "bench": bench,
     "bench_scaling": bench_scaling,
+    "bench_targets": bench_targets,
+    "bench_newton": bench_newton,
     "fd_aposteriori": fd_aposteriori,
     "fd2d_theta1_stabilization": fd2d_theta1_stabilization,
     "fd2d_crosscheck": fd2d_crosscheck,
