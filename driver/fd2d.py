@@ -8,7 +8,7 @@ y = a + b x that cuts the mesh.
 from driver.errors import SceneError
 from driver.schema import ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_adapt
 
-STABILIZATIONS = ("none", "neighbour", "ghost")
+STABILIZATIONS = ("auto", "none", "neighbour", "ghost")
 
 
 def body_schema(shape_fields, force):
@@ -49,7 +49,8 @@ SCHEMA = {
         "degree": Field("int", default=2, choices=(1, 2)),
         "theta": Field("float", default=-1.0),
         "gamma0": Field("float", default=1.0 / 200.0, check=positive),
-        "stabilization": Field("str", default="none", choices=STABILIZATIONS),
+        "stabilization": Field("str", default="auto", choices=STABILIZATIONS,
+                               doc="auto: ghost for theta > 0 (coercivity on cut elements), none otherwise"),
         "rho": Field("float", default=0.25, check=open_interval(0.0, 1.0 + 1e-12)),
         "ghost_gamma": Field("float", default=1e-2, check=positive),
     },

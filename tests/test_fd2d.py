@@ -67,6 +67,29 @@ def test_stabilizations_agree_with_plain_method(run_scene, stabilization):
     assert centre_y(stab) == pytest.approx(centre_y(plain), rel=0.02)
 
 
+def test_auto_stabilization_keeps_theta1_coercive(run_scene, tmp_path):
+    # theta = 1 at gamma0 = 1/10, NX = 80: without stabilization the symmetric method
+    # is not coercive on this cut mesh (Newton cycles: exit 3 with the coercivity
+    # hint); the default (auto = ghost penalty for theta > 0) converges.
+    settings = ["mesh.nx=80", "method.theta=1", "method.gamma0=0.1", "output.estimators=false",
+                "output.vtu=false", "output.pressure_csv=false"]
+    auto = run_scene(DISK, *settings)
+    assert auto.results["cut"]["stabilization"] == "ghost"
+    assert auto.results["newton"]["iterations"] <= 8
+    assert auto.results["contact"]["force_balance_error"] < 1e-6
+    plain = run_cli("run", DISK, "--out", str(tmp_path / "plain"), "--set",
+                    " ".join(settings + ["method.stabilization='none'"]))
+    assert plain.returncode == 3, plain.stderr
+    assert "coercivity" in plain.stderr
+    assert not (tmp_path / "plain" / "results.json").exists()
+
+
+def test_auto_stabilization_is_none_for_nonpositive_theta(run_scene):
+    run = run_scene(DISK, "mesh.nx=20", "method.theta=0", "output.estimators=false")
+    assert run.results["cut"]["stabilization"] == "none"
+    assert "estimator" not in run.results
+
+
 @pytest.mark.parametrize("override, key", [
     ("body1.centre=[0.0, 0.4]", "body1"),
     ("body1.radius=0.6", "body1"),
