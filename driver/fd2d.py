@@ -9,6 +9,7 @@ from driver.errors import SceneError
 from driver.schema import ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_adapt
 
 STABILIZATIONS = ("none", "neighbour", "ghost")
+GAMMA_SCALINGS = ("none", "body1")
 
 
 def body_schema(shape_fields, force):
@@ -52,6 +53,9 @@ SCHEMA = {
         "stabilization": Field("str", default="none", choices=STABILIZATIONS),
         "rho": Field("float", default=0.25, check=open_interval(0.0, 1.0 + 1e-12)),
         "ghost_gamma": Field("float", default=1e-2, check=positive),
+        "gamma_scaling": Field("str", default="none", choices=GAMMA_SCALINGS,
+                               doc="none: gamma = gamma0 h_K; body1: gamma = gamma0 h_K / E1 (Young modulus "
+                                   "of the disk, whose sigma_n enters the Nitsche terms)"),
     },
     "solver": {
         "newton_tol": Field("float", default=1e-9, check=positive),
@@ -71,6 +75,8 @@ SCHEMA = {
         "pressure_csv": Field("bool", default=True),
         "save_solution": Field("bool", default=False,
                                doc="write meshes and DOF arrays (a reference; every step when adapting)"),
+        "export_matrix": Field("bool", default=False,
+                               doc="write the last Newton matrix on the free DOFs (newton_matrix.mtx, MatrixMarket)"),
     },
 }
 
@@ -119,6 +125,9 @@ def check(scene, source):
         if not all(geo["ymin"] <= y < slab["top"] for y in ends):
             raise SceneError(f"{source}: key 'body2.bottom_line': the line y = {a:g} + {b:g} x must cross "
                              f"the box between its bottom and the slab top")
+    if line and scene["method"]["gamma_scaling"] != "none":
+        raise SceneError(f"{source}: key 'method.gamma_scaling': {scene['method']['gamma_scaling']!r} scales "
+                         f"the contact gamma by body 1's modulus; with body2.bottom_line use 'none'")
     fix = scene["rigid"]["fix_x_points"]
     for px, py in (fix[:2], fix[2:]):
         if (px - cx) ** 2 + (py - cy) ** 2 >= r ** 2:
@@ -156,6 +165,7 @@ def freefem_args(scene, mesh_file=""):
     put("stabilization", meth["stabilization"])
     put("rho", meth["rho"])
     put("ghost_gamma", meth["ghost_gamma"])
+    put("gamma_scaling", meth["gamma_scaling"])
     put("newton_tol", solver["newton_tol"])
     put("newton_max", solver["newton_max"])
     put("contact_qp", solver["contact_points"])
@@ -167,6 +177,7 @@ def freefem_args(scene, mesh_file=""):
     put("vtu", int(scene["output"]["vtu"]))
     put("csv", int(scene["output"]["pressure_csv"]))
     put("save", int(scene["output"]["save_solution"]))
+    put("export_matrix", int(scene["output"]["export_matrix"]))
     return args
 
 
