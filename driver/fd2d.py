@@ -9,7 +9,7 @@ from driver.errors import SceneError
 from driver.schema import ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_adapt
 
 STABILIZATIONS = ("none", "neighbour", "ghost")
-GAMMA_SCALINGS = ("none", "body1")
+GAMMA_SCALINGS = ("none", "body1", "mean_compliance")
 
 
 def body_schema(shape_fields, force):
@@ -55,7 +55,8 @@ SCHEMA = {
         "ghost_gamma": Field("float", default=1e-2, check=positive),
         "gamma_scaling": Field("str", default="none", choices=GAMMA_SCALINGS,
                                doc="none: gamma = gamma0 h_K; body1: gamma = gamma0 h_K / E1 (Young modulus "
-                                   "of the disk, whose sigma_n enters the Nitsche terms)"),
+                                   "of the disk, whose sigma_n enters the Nitsche terms); mean_compliance: "
+                                   "gamma = gamma0 h_K (1/E1 + 1/E2)/2"),
     },
     "solver": {
         "newton_tol": Field("float", default=1e-9, check=positive),
@@ -127,7 +128,7 @@ def check(scene, source):
                              f"the box between its bottom and the slab top")
     if line and scene["method"]["gamma_scaling"] != "none":
         raise SceneError(f"{source}: key 'method.gamma_scaling': {scene['method']['gamma_scaling']!r} scales "
-                         f"the contact gamma by body 1's modulus; with body2.bottom_line use 'none'")
+                         f"the contact gamma by the moduli; with body2.bottom_line use 'none'")
     fix = scene["rigid"]["fix_x_points"]
     for px, py in (fix[:2], fix[2:]):
         if (px - cx) ** 2 + (py - cy) ** 2 >= r ** 2:
