@@ -222,6 +222,25 @@ def hard_conditioning():
     return table
 
 
+def conditioning_summary(table):
+    """Per degree and stabilization: cond at the largest and smallest cut ratio, and the worst."""
+    rows = []
+    ok = table[table.status == "converged"]
+    for (degree, stab), g in ok.groupby(["degree", "stabilization"], sort=False):
+        g = g.sort_values("min_cut_ratio_body1")
+        worst = g.loc[g.cond1_estimate.idxmax()]
+        rows.append({"P": str(int(degree)), "stabilization": stab,
+                     "largest ratio: cond": f"{g.min_cut_ratio_body1.iloc[-1]:.1e}: {g.cond1_estimate.iloc[-1]:.2g}",
+                     "worst: ratio (kept): cond": f"{worst.min_cut_ratio_body1:.1e} ({worst.min_kept_ratio_body1:.1e}): "
+                                                  f"{worst.cond1_estimate:.2g}",
+                     "smallest ratio (kept): cond": f"{g.min_cut_ratio_body1.iloc[0]:.1e} "
+                                                    f"({g.min_kept_ratio_body1.iloc[0]:.1e}): "
+                                                    f"{g.cond1_estimate.iloc[0]:.2g}",
+                     "runs": str(len(g)), "failed": str(int((table[(table.degree == degree) & (
+                         table.stabilization == stab)].status != "converged").sum()))})
+    return pd.DataFrame(rows)
+
+
 def plot_conditioning(table):
     import matplotlib
     matplotlib.use("Agg")
