@@ -66,6 +66,15 @@ readme:
 
 # Speed against error on the disk on slab (timings: ratios and medians belong here,
 # never in tests): results/bench.csv, results/bench_scaling.csv, plots/speed_vs_error.png.
+# Hard cases (issue 5): the scenes of cases/hard/ (results/hard_cases.csv), the
+# material scaling of gamma (results/hard_gamma_scaling.csv), the conditioning of the
+# Newton matrix against the cut (results/hard_conditioning.csv, plots/conditioning.png).
+# The sliver errors use a P2 NX = 160 reference (computed once into runs/reference/).
+.PHONY: hard-study
+hard-study: setup
+	$(PYTHON) -m driver study hard-cases hard-conditioning
+	$(PYTHON) -m driver readme
+
 .PHONY: bench
 bench: setup
 	$(PYTHON) -m driver study bench

@@ -9,6 +9,7 @@ from driver.errors import SceneError
 from driver.schema import ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_adapt
 
 STABILIZATIONS = ("auto", "none", "neighbour", "ghost")
+GAMMA_SCALINGS = ("none", "body1", "mean_compliance")
 
 
 def body_schema(shape_fields, force):
@@ -53,6 +54,10 @@ SCHEMA = {
                                doc="auto: ghost for theta > 0 (coercivity on cut elements), none otherwise"),
         "rho": Field("float", default=0.25, check=open_interval(0.0, 1.0 + 1e-12)),
         "ghost_gamma": Field("float", default=1e-2, check=positive),
+        "gamma_scaling": Field("str", default="none", choices=GAMMA_SCALINGS,
+                               doc="none: gamma = gamma0 h_K; body1: gamma = gamma0 h_K / E1 (Young modulus "
+                                   "of the disk, whose sigma_n enters the Nitsche terms); mean_compliance: "
+                                   "gamma = gamma0 h_K (1/E1 + 1/E2)/2"),
     },
     "solver": {
         "newton_tol": Field("float", default=1e-9, check=positive),
@@ -76,6 +81,8 @@ SCHEMA = {
                             doc="residual estimators eta_1..eta_5 (needed by adapt.steps > 0)"),
         "save_solution": Field("bool", default=False,
                                doc="write meshes and DOF arrays (a reference; every step when adapting)"),
+        "export_matrix": Field("bool", default=False,
+                               doc="write the last Newton matrix on the free DOFs (newton_matrix.mtx, MatrixMarket)"),
     },
 }
 
@@ -126,6 +133,9 @@ def check(scene, source):
                              f"the box between its bottom and the slab top")
     if scene["adapt"]["steps"] > 0 and not scene["output"]["estimators"]:
         raise SceneError(f"{source}: key 'output.estimators': adaptation (adapt.steps > 0) needs the estimators")
+    if line and scene["method"]["gamma_scaling"] != "none":
+        raise SceneError(f"{source}: key 'method.gamma_scaling': {scene['method']['gamma_scaling']!r} scales "
+                         f"the contact gamma by the moduli; with body2.bottom_line use 'none'")
     fix = scene["rigid"]["fix_x_points"]
     for px, py in (fix[:2], fix[2:]):
         if (px - cx) ** 2 + (py - cy) ** 2 >= r ** 2:
@@ -163,6 +173,7 @@ def freefem_args(scene, mesh_file=""):
     put("stabilization", meth["stabilization"])
     put("rho", meth["rho"])
     put("ghost_gamma", meth["ghost_gamma"])
+    put("gamma_scaling", meth["gamma_scaling"])
     put("newton_tol", solver["newton_tol"])
     put("newton_max", solver["newton_max"])
     put("contact_qp", solver["contact_points"])
@@ -176,6 +187,7 @@ def freefem_args(scene, mesh_file=""):
     put("csv", int(scene["output"]["pressure_csv"]))
     put("save", int(scene["output"]["save_solution"]))
     put("estimators", int(scene["output"]["estimators"]))
+    put("export_matrix", int(scene["output"]["export_matrix"]))
     return args
 
 

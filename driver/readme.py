@@ -145,7 +145,28 @@ def bench_newton():
     return markdown_table(pd.DataFrame(rows))
 
 
+def hard_cases():
+    from driver.hard_studies import hard_cases_table
+
+    return hard_cases_table(pd.read_csv(RESULTS / "hard_cases.csv"))
+
+
+def hard_gamma_scaling():
+    from driver.hard_studies import gamma_scaling_table
+
+    return gamma_scaling_table(pd.read_csv(RESULTS / "hard_gamma_scaling.csv"))
+
+
+def hard_conditioning():
+    from driver.hard_studies import conditioning_summary
+
+    return markdown_table(conditioning_summary(pd.read_csv(RESULTS / "hard_conditioning.csv")))
+
+
 TABLES = {
+    "hard_cases": hard_cases,
+    "hard_gamma_scaling": hard_gamma_scaling,
+    "hard_conditioning": hard_conditioning,
     "bench": bench,
     "bench_scaling": bench_scaling,
     "bench_targets": bench_targets,
