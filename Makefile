@@ -65,7 +65,7 @@ readme:
 	$(PYTHON) -m driver readme
 
 # Speed against error on the disk on slab (timings: ratios and medians belong here,
-# never in tests): results/bench.csv, results/bench_scaling.csv, plots/speed_vs_error.png.
+# never in tests): results/bench*.csv (Newton grid first: not timed), plots/speed_vs_error.png.
 # Hard cases (issue 5): the scenes of cases/hard/ (results/hard_cases.csv), the
 # material scaling of gamma (results/hard_gamma_scaling.csv), the conditioning of the
 # Newton matrix against the cut (results/hard_conditioning.csv, plots/conditioning.png).
@@ -77,4 +77,5 @@ hard-study: setup
 
 .PHONY: bench
 bench: setup
-	$(PYTHON) -m driver study bench
+	$(PYTHON) -m driver study bench-newton bench
+	$(PYTHON) -m driver readme

@@ -217,7 +217,10 @@ def bench():
     table.to_csv(RESULTS_DIR / "bench.csv", index=False)
     scaling = scaling_table(table)
     scaling.to_csv(RESULTS_DIR / "bench_scaling.csv", index=False)
-    newton = newton_grid()
+    newton_path = RESULTS_DIR / "bench_newton.csv"
+    if not newton_path.exists():
+        raise DriverError(f"{newton_path} missing: run 'python -m driver study bench-newton' first (make bench does)")
+    newton = pd.read_csv(newton_path)
     targets = targets_table(walls, ratios, newton, table)
     targets["machine"] = machine()
     targets["load_average"] = f"{load_before:.2f} before, {load_average():.2f} after"
