@@ -82,3 +82,20 @@ def test_freefem_script_rejects_a_ball_outside_the_box(tmp_path):
                           cwd=REPO, env=freefem_env(), capture_output=True, text=True)
     assert proc.returncode == 2
     assert "INPUT ERROR" in proc.stdout + proc.stderr
+
+
+def test_error_routine_measures_a_known_shift(run_scene, tmp_path):
+    # A saved P2 run against itself shifted by a constant c: |c| |Omega_i|^(1/2) in L2 and H1.
+    run = run_scene(BALL, "mesh.nx=4", "method.degree=2", "output.save_solution=true", "output.vtu=false")
+    out = tmp_path / "errors.json"
+    proc = subprocess.run(["FreeFem++", "-nw", "-v", "0", "freefem/fd_error_3d.edp", "-ref", str(run.folder),
+                           "-run", str(run.folder), "-shift_z", "1e-3", "-out", str(out)],
+                          cwd=REPO, env=freefem_env(), capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    import json
+    err = json.loads(out.read_text())
+    for body in ("body1", "body2"):
+        expected = 1e-3 * err[body]["volume_ref"] ** 0.5
+        assert err[body]["l2_abs"] == pytest.approx(expected, rel=1e-9)
+        assert err[body]["h1_abs"] == pytest.approx(expected, rel=1e-9)
+    assert err["body1"]["volume_ref"] == pytest.approx(run.results["volumes"]["body1"], rel=1e-9)
