@@ -79,3 +79,10 @@ hard-study: setup
 bench: setup
 	$(PYTHON) -m driver study bench-newton bench
 	$(PYTHON) -m driver readme
+
+# Fictitious-domain ball on slab (3D): P1 (theta = 1, 0, -1) and P2 ladders against a
+# P2 reference (nx = FD3D_REFERENCE_NX, default 30, computed once into runs/reference/),
+# cost against DOFs, the centre-cut von Mises figure.
+.PHONY: fd3d-study
+fd3d-study: setup
+	$(PYTHON) -m driver study fd3d-convergence ball-on-slab-figure

@@ -20,9 +20,9 @@ SCENE_HEADER = {
 
 def script_modules():
     # Imported here so that each script module can import this one.
-    from driver import fd2d, foundation
+    from driver import fd2d, fd3d, foundation
 
-    return {"contact_foundation_2d": foundation, "fd_contact_2d": fd2d}
+    return {"contact_foundation_2d": foundation, "fd_contact_2d": fd2d, "fd_contact_3d": fd3d}
 
 
 def parse_override(text):

@@ -1,0 +1,173 @@
+"""Scenes for freefem/fd_contact_3d.edp: two bodies on one background mesh of a box in 3D.
+
+Body 1 is a ball, body 2 a slab {z < top} of the box, held strongly on the box
+bottom z = zmin. The rigid motions of the floating ball are removed by fixing
+u1_x and u1_y at the nodes nearest to two points A, B (on a vertical line through
+the ball: translations in x, y and rotations about x, y) and u1_y at the node
+nearest to a third point C (off that line in x: rotation about z), plus a mass
+term eps int u1.v1 (z translation is carried by the contact).
+"""
+
+from driver.errors import SceneError
+from driver.fd2d import lame
+from driver.schema import Field, FreeFemFlags, at_least, open_interval, positive
+
+STABILIZATIONS = ("none", "neighbour")
+
+
+def body_schema(shape_fields, force):
+    return dict(shape_fields, **{
+        "lambda": Field("float", default=None),
+        "mu": Field("float", default=None, check=positive),
+        "E": Field("float", default=None, check=positive),
+        "nu": Field("float", default=None, check=open_interval(-1.0, 0.5)),
+        "body_force": Field("vector", default=force, length=3),
+    })
+
+
+SCHEMA = {
+    "geometry": {
+        "xmin": Field("float", default=-0.5), "xmax": Field("float", default=0.5),
+        "ymin": Field("float", default=-0.5), "ymax": Field("float", default=0.5),
+        "zmin": Field("float", default=-0.5), "zmax": Field("float", default=0.5),
+    },
+    "mesh": {
+        "nx": Field("int", default=10, check=at_least(2), doc="cells per side of the box (h = width/nx)"),
+    },
+    "body1": body_schema({
+        "shape": Field("str", default="ball", choices=("ball",)),
+        "centre": Field("vector", default=[0.0, 0.0, 0.0], length=3),
+        "radius": Field("float", default=0.25, check=positive),
+    }, [0.0, 0.0, -0.1]),
+    "body2": body_schema({
+        "shape": Field("str", default="slab", choices=("slab",)),
+        "top": Field("float", default=-0.25),
+    }, [0.0, 0.0, 0.0]),
+    "rigid": {
+        "mass_eps": Field("float", default=1e-7, check=at_least(0.0),
+                          doc="mass term eps int u1.v1 against the floating ball's rigid motions"),
+        "fix_xy_points": Field("vector", default=[0.0, 0.0, 0.0, 0.0, 0.0, 0.1], length=6,
+                               doc="u1_x = u1_y = 0 at the nodes nearest to A and B (xA, yA, zA, xB, yB, zB)"),
+        "fix_y_point": Field("vector", default=[0.1, 0.0, 0.0], length=3,
+                             doc="u1_y = 0 at the node nearest to C (rotation about z)"),
+    },
+    "method": {
+        "degree": Field("int", default=1, choices=(1, 2)),
+        "theta": Field("float", default=-1.0),
+        "gamma0": Field("float", default=1.0 / 200.0, check=positive),
+        "stabilization": Field("str", default="none", choices=STABILIZATIONS),
+        "rho": Field("float", default=0.25, check=open_interval(0.0, 1.0 + 1e-12)),
+    },
+    "solver": {
+        "newton_tol": Field("float", default=1e-9, check=positive),
+        "newton_max": Field("int", default=30, check=at_least(1)),
+        "contact_points": Field("int", default=0, choices=(0, 1, 3, 6),
+                                doc="points per interface triangle (0: 3 for P1, 6 for P2)"),
+        "active0": Field("float", default=0.1, check=at_least(0.0)),
+        "predictor_steps": Field("int", default=4, check=at_least(0)),
+        "refactor_points": Field("int", default=12, check=at_least(0)),
+    },
+    "output": {
+        "vtu": Field("bool", default=True),
+        "csv": Field("bool", default=True, doc="contact_pressure.csv and centre_cut.csv"),
+        "save_solution": Field("bool", default=False, doc="write meshes and DOF arrays (a reference)"),
+    },
+}
+
+
+def inside_ball(point, centre, radius):
+    return sum((p - c) ** 2 for p, c in zip(point, centre)) < radius ** 2
+
+
+def check(scene, source):
+    geo = scene["geometry"]
+    lo = [geo["xmin"], geo["ymin"], geo["zmin"]]
+    hi = [geo["xmax"], geo["ymax"], geo["zmax"]]
+    if not all(h > l for l, h in zip(lo, hi)):
+        raise SceneError(f"{source}: key 'geometry': the box is empty (need max > min on every axis)")
+    for key in ("body1", "body2"):
+        scene[key]["lame"] = lame(scene[key], source, key)
+    ball = scene["body1"]
+    c, r = ball["centre"], ball["radius"]
+    if any(c[i] - r <= lo[i] or c[i] + r >= hi[i] for i in range(3)):
+        raise SceneError(f"{source}: key 'body1': the ball (centre {c}, radius {r}) is not inside the box")
+    slab = scene["body2"]
+    if not geo["zmin"] < slab["top"] < geo["zmax"]:
+        raise SceneError(f"{source}: key 'body2.top': the slab top {slab['top']} misses the box "
+                         f"({geo['zmin']}, {geo['zmax']})")
+    if c[2] - r < slab["top"] - 1e-12:
+        raise SceneError(f"{source}: key 'body1': the ball overlaps the slab initially "
+                         f"(lowest point {c[2] - r:g} < slab top {slab['top']:g})")
+    rigid = scene["rigid"]
+    a, b = rigid["fix_xy_points"][:3], rigid["fix_xy_points"][3:]
+    for name, point in (("fix_xy_points", a), ("fix_xy_points", b), ("fix_y_point", rigid["fix_y_point"])):
+        if not inside_ball(point, c, r):
+            raise SceneError(f"{source}: key 'rigid.{name}': {point} is not inside the ball")
+    if abs(a[0] - b[0]) > 1e-12 or abs(a[1] - b[1]) > 1e-12 or a[2] == b[2]:
+        raise SceneError(f"{source}: key 'rigid.fix_xy_points': A and B must lie on one vertical line, "
+                         f"at different heights")
+    if abs(rigid["fix_y_point"][0] - a[0]) < 1e-12:
+        raise SceneError(f"{source}: key 'rigid.fix_y_point': C must lie off the vertical line "
+                         f"through A and B in x (it fixes the rotation about z)")
+
+
+def freefem_args(scene, mesh_file=""):
+    geo, meth, solver = scene["geometry"], scene["method"], scene["solver"]
+    ball, slab = scene["body1"], scene["body2"]
+    args = FreeFemFlags([f"-Ddegree={meth['degree']}"])
+    put = args.put
+    put("name", scene["scene"]["name"])
+    for key in ("xmin", "xmax", "ymin", "ymax", "zmin", "zmax"):
+        put(key, geo[key])
+    put("nx", scene["mesh"]["nx"])
+    for axis, value in zip("xyz", ball["centre"]):
+        put(f"ball_c{axis}", value)
+    put("ball_r", ball["radius"])
+    put("slab_top", slab["top"])
+    for i, body in ((1, ball), (2, slab)):
+        put(f"lambda{i}", body["lame"][0])
+        put(f"mu{i}", body["lame"][1])
+        for axis, value in zip("xyz", body["body_force"]):
+            put(f"f{i}{axis}", value)
+    rigid = scene["rigid"]
+    put("mass_eps", rigid["mass_eps"])
+    for key, value in zip(("fix_ax", "fix_ay", "fix_az", "fix_bx", "fix_by", "fix_bz"), rigid["fix_xy_points"]):
+        put(key, value)
+    for key, value in zip(("fix_cx", "fix_cy", "fix_cz"), rigid["fix_y_point"]):
+        put(key, value)
+    put("theta", meth["theta"])
+    put("gamma0", meth["gamma0"])
+    put("stabilization", meth["stabilization"])
+    put("rho", meth["rho"])
+    put("newton_tol", solver["newton_tol"])
+    put("newton_max", solver["newton_max"])
+    if solver["contact_points"]:
+        put("contact_qp", solver["contact_points"])
+    put("active0", solver["active0"])
+    put("predictor_steps", solver["predictor_steps"])
+    put("refactor_points", solver["refactor_points"])
+    put("vtu", int(scene["output"]["vtu"]))
+    put("csv", int(scene["output"]["csv"]))
+    put("save", int(scene["output"]["save_solution"]))
+    return args
+
+
+def prepare_mesh(scene, workdir, run_command):
+    return ""      # the background mesh is a FreeFEM cube
+
+
+def summary_lines(results):
+    contact, cut = results["contact"], results["cut"]
+    centre = results["ball"]["centre_displacement"]
+    force = contact["force_on_body1"]
+    return [
+        f"bodies: {results['dofs_body1']} + {results['dofs_body2']} DOFs on the cut spaces, "
+        f"volumes {results['volumes']['body1']:.6g} and {results['volumes']['body2']:.6g}",
+        f"ball centre displacement: ({centre[0]:.3g}, {centre[1]:.3g}, {centre[2]:.6g})",
+        f"contact: active area {contact['active_area']:.4g} of {contact['boundary_area']:.4g}, "
+        f"force on ball ({force[0]:.3g}, {force[1]:.3g}, {force[2]:.6g}), "
+        f"balance error {contact['force_balance_error']:.1e}, max pressure {contact['max_pressure']:.4g}",
+        f"cut elements: min ratio {cut['min_ratio_body1']:.2e} (ball), {cut['min_ratio_body2']:.2e} (slab); "
+        f"stabilization {cut['stabilization']}: cases a/b/c = {cut['case_a']}/{cut['case_b']}/{cut['case_c']} "
+        f"(per interface triangle), sliver elements dropped {cut['dropped_body1']} + {cut['dropped_body2']}",
+    ]

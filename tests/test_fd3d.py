@@ -1,0 +1,113 @@
+"""Two-body fictitious-domain contact in 3D (ball on slab): physics checks on coarse meshes."""
+
+import subprocess
+
+import meshio
+import pandas as pd
+import pytest
+
+from conftest import REPO, run_cli
+from driver.runner import freefem_env
+
+BALL = "cases/ball_on_slab.toml"
+
+
+def centre_z(run):
+    return run.results["ball"]["centre_displacement"][2]
+
+
+@pytest.mark.parametrize("theta", [1, 0, -1])
+def test_ball_on_slab_converges_and_balances(run_scene, theta):
+    run = run_scene(BALL, "mesh.nx=8", f"method.theta={theta}")
+    r = run.results
+    assert r["dim"] == 3 and r["degree"] == 1
+    assert r["newton"]["converged_by"] in ("tolerance", "roundoff_floor")
+    assert r["newton"]["iterations"] <= 8
+    assert r["newton"]["residual"][-1] < 1e-8
+    # equilibrium: the contact force on the ball carries its weight (0, 0, -0.1 |ball|)
+    applied = r["contact"]["applied_force_body1"]
+    assert applied[2] == pytest.approx(-0.1 * r["volumes"]["body1"], rel=1e-12)
+    force = r["contact"]["force_on_body1"]
+    assert force[2] == pytest.approx(-applied[2], rel=0.01)
+    assert r["contact"]["force_balance_error"] < 0.01
+    # the P1 ball {phi1_h < 0} lies inside the exact ball (phi1 is convex); slab exact
+    assert 0.8 * 0.0654498 < r["volumes"]["body1"] < 0.0654498
+    assert r["volumes"]["body2"] == pytest.approx(0.25, rel=1e-8)
+    assert 0 < r["contact"]["active_area"] < 0.1 * r["contact"]["boundary_area"]
+    assert -0.05 < centre_z(run) < -0.02
+    assert r["dofs"] == r["dofs_body1"] + r["dofs_body2"]
+    assert r["dofs_body1"] < 0.5 * r["dofs"]      # unused background DOFs never enter
+
+
+def test_slab_top_cutting_the_elements_and_neighbour_stabilization(run_scene):
+    # nx = 10: z = -0.25 cuts the cells (nx = 8: it lies on a grid plane)
+    plain = run_scene(BALL, "mesh.nx=10")
+    stab = run_scene(BALL, "mesh.nx=10", "method.stabilization='neighbour'")
+    assert plain.results["volumes"]["body2"] == pytest.approx(0.25, rel=1e-8)
+    assert plain.results["cut"]["cut_elements_body2"] > 0
+    cut = stab.results["cut"]
+    # face neighbours (two rings) hold a well cut element for almost every badly cut one
+    assert cut["case_b"] > 0 and cut["case_c"] < 0.1 * (cut["case_a"] + cut["case_b"] + cut["case_c"])
+    assert stab.results["contact"]["force_balance_error"] < 0.01
+    assert centre_z(stab) == pytest.approx(centre_z(plain), rel=0.05)
+
+
+def test_outputs_are_readable(run_scene):
+    run = run_scene(BALL, "mesh.nx=8")
+    ball = meshio.read(run.folder / "body1.vtu")
+    assert {"displacement", "von_mises"} <= set(ball.point_data)
+    assert "contact_pressure" in ball.cell_data
+    cut = pd.read_csv(run.folder / "centre_cut.csv")
+    assert set(cut["body"]) == {1, 2}
+    pressure = pd.read_csv(run.folder / "contact_pressure.csv")
+    assert (pressure["pressure"] <= 0).all() and (pressure["pressure"] < 0).any()
+
+
+@pytest.mark.parametrize("override, key", [
+    ("body1.centre=[0.0, 0.0, 0.4]", "body1"),                 # outside the box
+    ("body1.centre=[0.0, 0.0, -0.1]", "body1"),                # overlaps the slab
+    ("body2.top=0.7", "body2.top"),
+    ("rigid.fix_y_point=[0.0, 0.0, 0.05]", "rigid.fix_y_point"),
+    ("method.stabilization='ghost'", "method.stabilization"),
+])
+def test_bad_3d_input_is_rejected(override, key):
+    proc = run_cli("run", BALL, "--set", override)
+    assert proc.returncode == 2
+    assert f"'{key}" in proc.stderr and BALL in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_freefem_script_rejects_a_ball_outside_the_box(tmp_path):
+    proc = subprocess.run(["FreeFem++", "-nw", "-v", "0", "freefem/fd_contact_3d.edp", "-Ddegree=1",
+                           "-ball_cz", "0.4", "-outdir", str(tmp_path)],
+                          cwd=REPO, env=freefem_env(), capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert "INPUT ERROR" in proc.stdout + proc.stderr
+
+
+def test_error_routine_measures_a_known_shift(run_scene, tmp_path):
+    # A saved P2 run against itself shifted by a constant c: |c| |Omega_i|^(1/2) in L2 and H1.
+    run = run_scene(BALL, "mesh.nx=4", "method.degree=2", "output.save_solution=true", "output.vtu=false")
+    out = tmp_path / "errors.json"
+    proc = subprocess.run(["FreeFem++", "-nw", "-v", "0", "freefem/fd_error_3d.edp", "-ref", str(run.folder),
+                           "-run", str(run.folder), "-shift_z", "1e-3", "-out", str(out)],
+                          cwd=REPO, env=freefem_env(), capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    import json
+    err = json.loads(out.read_text())
+    for body in ("body1", "body2"):
+        expected = 1e-3 * err[body]["volume_ref"] ** 0.5
+        assert err[body]["l2_abs"] == pytest.approx(expected, rel=1e-9)
+        assert err[body]["h1_abs"] == pytest.approx(expected, rel=1e-9)
+    assert err["body1"]["volume_ref"] == pytest.approx(run.results["volumes"]["body1"], rel=1e-9)
+
+
+def test_neighbour_stabilization_rescues_theta_one(run_scene):
+    # P2, theta = 1, h = 1/6 without stabilization: Newton does not converge in 30
+    # iterations (badly cut elements spoil coercivity, results/fd3d_convergence.csv);
+    # the neighbour stress (R_rho) restores it.
+    run = run_scene(BALL, "mesh.nx=6", "method.degree=2", "method.theta=1", "method.stabilization='neighbour'",
+                    "output.vtu=false")
+    r = run.results
+    assert r["newton"]["iterations"] <= 6
+    assert r["contact"]["force_balance_error"] < 1e-6
+    assert r["cut"]["case_b"] > 0
