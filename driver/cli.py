@@ -46,8 +46,9 @@ def format_summary(scene, module, results, folder, wall):
 
 def all_studies():
     from driver import bench, fd2d_studies, fd3d_studies, studies
+    from driver import fd3d_est_studies
 
-    return {**studies.STUDIES, **fd2d_studies.STUDIES, **fd3d_studies.STUDIES, "bench": bench.bench}
+    return {**studies.STUDIES, **fd2d_studies.STUDIES, **fd3d_studies.STUDIES, **fd3d_est_studies.STUDIES, "bench": bench.bench}
 
 
 def cmd_study(args):
