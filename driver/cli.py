@@ -45,10 +45,10 @@ def format_summary(scene, module, results, folder, wall):
 
 
 def all_studies():
-    from driver import bench, fd2d_studies, fd3d_studies, hard_studies, studies
+    from driver import bench, fd2d_studies, fd3d_est_studies, fd3d_studies, hard_studies, studies
 
-    return {**studies.STUDIES, **fd2d_studies.STUDIES, **fd3d_studies.STUDIES, **hard_studies.STUDIES,
-            "bench": bench.bench, "bench-newton": bench.newton_grid}
+    return {**studies.STUDIES, **fd2d_studies.STUDIES, **fd3d_studies.STUDIES, **fd3d_est_studies.STUDIES,
+            **hard_studies.STUDIES, "bench": bench.bench, "bench-newton": bench.newton_grid}
 
 
 def cmd_study(args):

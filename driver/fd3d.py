@@ -10,7 +10,7 @@ term eps int u1.v1 (z translation is carried by the contact).
 
 from driver.errors import SceneError
 from driver.fd2d import lame
-from driver.schema import Field, FreeFemFlags, at_least, open_interval, positive
+from driver.schema import ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_adapt
 
 STABILIZATIONS = ("none", "neighbour")
 
@@ -67,8 +67,13 @@ SCHEMA = {
         "predictor_steps": Field("int", default=4, check=at_least(0)),
         "refactor_points": Field("int", default=12, check=at_least(0)),
     },
+    "adapt": dict(ADAPT_SCHEMA, switch=Field(
+        "str", default="rqaAQ",
+        doc="tetgen switches of tetgreconstruction (r refine, q quality, a volume bounds); "
+            "steps refine by tetgen, max_coarsen is unused (tetgen never coarsens)")),
     "output": {
-        "vtu": Field("bool", default=True),
+        "vtu": Field("bool", default=True, doc="body VTUs and estimators.vtu (P0 eta fields on the background mesh)"),
+        "estimators": Field("bool", default=True, doc="residual estimators eta1..eta5 (needed by adapt.steps > 0)"),
         "csv": Field("bool", default=True, doc="contact_pressure.csv and centre_cut.csv"),
         "save_solution": Field("bool", default=False, doc="write meshes and DOF arrays (a reference)"),
     },
@@ -98,6 +103,10 @@ def check(scene, source):
     if c[2] - r < slab["top"] - 1e-12:
         raise SceneError(f"{source}: key 'body1': the ball overlaps the slab initially "
                          f"(lowest point {c[2] - r:g} < slab top {slab['top']:g})")
+    if scene["adapt"]["steps"] > 0 and not scene["output"]["estimators"]:
+        raise SceneError(f"{source}: key 'adapt.steps': adaptation needs output.estimators = true")
+    if not scene["adapt"]["switch"].startswith("r") or "a" not in scene["adapt"]["switch"] or "p" in scene["adapt"]["switch"]:
+        raise SceneError(f"{source}: key 'adapt.switch': tetgreconstruction needs 'r' first, 'a', and no 'p'")
     rigid = scene["rigid"]
     a, b = rigid["fix_xy_points"][:3], rigid["fix_xy_points"][3:]
     for name, point in (("fix_xy_points", a), ("fix_xy_points", b), ("fix_y_point", rigid["fix_y_point"])):
@@ -146,6 +155,9 @@ def freefem_args(scene, mesh_file=""):
     put("active0", solver["active0"])
     put("predictor_steps", solver["predictor_steps"])
     put("refactor_points", solver["refactor_points"])
+    put("estimators", int(scene["output"]["estimators"]))
+    put_adapt(args, scene["adapt"])
+    put("adapt_switch", scene["adapt"]["switch"])
     put("vtu", int(scene["output"]["vtu"]))
     put("csv", int(scene["output"]["csv"]))
     put("save", int(scene["output"]["save_solution"]))
@@ -160,7 +172,17 @@ def summary_lines(results):
     contact, cut = results["contact"], results["cut"]
     centre = results["ball"]["centre_displacement"]
     force = contact["force_on_body1"]
-    return [
+    lines = []
+    est = results.get("estimator")
+    if est:
+        lines.append("estimator: eta {eta:.4g} (eta1 {eta1:.3g}, eta2 {eta2:.3g}, eta3 {eta3:.3g}, eta4 {eta4:.3g}, "
+                     "eta5 {eta5:.3g}), zeta {zeta:.3g}; ball {eta_body1:.3g}, slab {eta_body2:.3g}".format(**est))
+    steps = results.get("steps", {})
+    if len(steps.get("dofs", [])) > 1:
+        lines.append(f"adaptation (tetgen): {len(steps['dofs'])} solves, DOFs {int(steps['dofs'][0])} -> "
+                     f"{int(steps['dofs'][-1])}, eta {steps['eta'][0]:.4g} -> {steps['eta'][-1]:.4g}, "
+                     f"ball volume {steps['volume_body1'][0]:.6f} -> {steps['volume_body1'][-1]:.6f}")
+    return lines + [
         f"bodies: {results['dofs_body1']} + {results['dofs_body2']} DOFs on the cut spaces, "
         f"volumes {results['volumes']['body1']:.6g} and {results['volumes']['body2']:.6g}",
         f"ball centre displacement: ({centre[0]:.3g}, {centre[1]:.3g}, {centre[2]:.6g})",
