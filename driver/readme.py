@@ -128,7 +128,8 @@ def bench_targets():
     t = pd.read_csv(RESULTS / "bench_targets.csv")
     t["met"] = t.met.map({True: "yes", False: "**no**"})
     t.loc[t.bound.fillna("").isin(["", "(no target)"]), "met"] = ""   # information rows
-    return markdown_table(t[["target", "bound", "measured", "met"]])
+    return (markdown_table(t[["target", "bound", "measured", "met"]])
+            + f"\n\nMachine: {t.machine.iloc[0]}; load average (1 min) {t.load_average.iloc[0]} the timed runs.")
 
 
 def bench_newton():
