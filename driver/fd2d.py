@@ -13,12 +13,13 @@ GAMMA_SCALINGS = ("none", "body1", "mean_compliance")
 
 
 def body_schema(shape_fields, force):
+    """A body's fields: its shape, Lame (or E, nu) and a volume force of len(force) components."""
     return dict(shape_fields, **{
         "lambda": Field("float", default=None),
         "mu": Field("float", default=None, check=positive),
         "E": Field("float", default=None, check=positive),
         "nu": Field("float", default=None, check=open_interval(-1.0, 0.5)),
-        "body_force": Field("vector", default=force, length=2),
+        "body_force": Field("vector", default=force, length=len(force)),
     })
 
 

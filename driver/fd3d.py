@@ -9,20 +9,10 @@ term eps int u1.v1 (z translation is carried by the contact).
 """
 
 from driver.errors import SceneError
-from driver.fd2d import lame
+from driver.fd2d import body_schema, lame
 from driver.schema import ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_adapt
 
 STABILIZATIONS = ("none", "neighbour")
-
-
-def body_schema(shape_fields, force):
-    return dict(shape_fields, **{
-        "lambda": Field("float", default=None),
-        "mu": Field("float", default=None, check=positive),
-        "E": Field("float", default=None, check=positive),
-        "nu": Field("float", default=None, check=open_interval(-1.0, 0.5)),
-        "body_force": Field("vector", default=force, length=3),
-    })
 
 
 SCHEMA = {
