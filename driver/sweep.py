@@ -313,8 +313,8 @@ def flatten_results(results, prefix="", depth=0):
             out.update(flatten_results(value, name + ".", depth + 1))
         elif isinstance(value, (int, float, str, bool)):
             out[name] = value
-        elif (isinstance(value, list) and 0 < len(value) <= 4
-              and all(isinstance(v, (int, float)) for v in value) and key != "residual"):
+        elif (isinstance(value, list) and 0 < len(value) <= 4 and not prefix.startswith("newton.")
+              and all(isinstance(v, (int, float)) for v in value)):      # not Newton histories
             out.update({f"{name}.{i}": v for i, v in enumerate(value)})
     return out
 
@@ -557,6 +557,9 @@ def submit_all(todo, points, store, progress, done, failed, workers, scheduler, 
             for future in finished:
                 p = running.pop(future)
                 result = collect(future)
+                # Release the key now: a worker that dies later would otherwise make the
+                # scheduler recompute a result we already hold (the point would run twice).
+                future.release()
                 store.put(p, result)
                 done += 1
                 failed += result["row"].get("status") != "converged"
