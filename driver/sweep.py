@@ -23,7 +23,6 @@ Ctrl-C (SIGINT): the first one stops submitting and waits for the running points
 (their rows are stored), the second one aborts them.
 """
 
-import argparse
 import hashlib
 import importlib
 import itertools
