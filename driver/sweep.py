@@ -23,6 +23,7 @@ Ctrl-C (SIGINT): the first one stops submitting and waits for the running points
 (their rows are stored), the second one aborts them.
 """
 
+import functools
 import hashlib
 import importlib
 import itertools
@@ -85,8 +86,10 @@ def file_digest(path):
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+@functools.lru_cache(maxsize=None)
 def code_digest(extra=()):
-    """Digest of the FreeFEM sources and the driver modules that shape a run."""
+    """Digest of the FreeFEM sources and the driver modules that shape a run (read once
+    per process: the code does not change while a sweep is being set up)."""
     digest = hashlib.sha256()
     files = sorted((REPO / "freefem").rglob("*.edp")) + sorted((REPO / "freefem").rglob("*.idp"))
     files += [REPO / name for name in (*CODE_FILES, *extra)]

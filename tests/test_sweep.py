@@ -146,30 +146,33 @@ def test_failures_are_rows_and_a_point_that_keeps_killing_its_worker_is_bounded(
 
 
 def test_interrupted_sweep_resumes_running_each_point_once(tmp_path):
-    """SIGINT after the first row: running points finish, the rest run on restart, once each."""
-    path = write_sweep(tmp_path, "resume", {"mesh.nx": [12, 14, 16, 18, 20]}, debug={"sleep_s": 1.5})
+    """Ctrl-C after the first row: running points finish, the rest run on restart, once each."""
+    path = write_sweep(tmp_path, "resume", {"mesh.nx": [12, 14, 16, 18, 20, 22]}, debug={"sleep_s": 1.5})
+    # Its own process group, signalled as a whole, as a terminal's Ctrl-C does: the
+    # workers and their FreeFEM runs must not die of it, only the client decides.
     proc = subprocess.Popen([sys.executable, "-m", "driver", *sweep_args(path, tmp_path, "--workers", "2")],
-                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
     try:
         wait_for(lambda: row_files(tmp_path), "a first row")
-        proc.send_signal(signal.SIGINT)
+        os.killpg(proc.pid, signal.SIGINT)
         out, err = proc.communicate(timeout=300)
     finally:
         proc.kill()
     assert proc.returncode == 130, err
     assert "interrupted" in err
     stored = row_files(tmp_path)
-    assert 1 <= len(stored) < 5
+    assert 1 <= len(stored) < 6
     assert set(stored) == {a[0] for a in attempts(tmp_path)}       # every started point finished
     assert len(read_table(tmp_path, "resume")) == len(stored)
 
     again = run_cli(*sweep_args(path, tmp_path, "--workers", "2"))
     assert again.returncode == 0, again.stderr
-    assert f"5/5 done ({len(stored)} from earlier runs)" in again.stderr
+    assert f"6/6 done ({len(stored)} from earlier runs)" in again.stderr
     counts = Counter(a[0] for a in attempts(tmp_path))
-    assert len(counts) == 5 and set(counts.values()) == {1}
+    assert len(counts) == 6 and set(counts.values()) == {1}
     table = read_table(tmp_path, "resume")
-    assert table["mesh.nx"].tolist() == [12, 14, 16, 18, 20]
+    assert table["mesh.nx"].tolist() == [12, 14, 16, 18, 20, 22]
     assert (table.status == "converged").all()
 
 
