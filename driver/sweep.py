@@ -536,6 +536,7 @@ def submit_all(todo, points, store, progress, done, failed, workers, scheduler, 
     previous = signal.signal(signal.SIGINT, on_sigint) if in_main_thread() else None
     queue = list(todo)
     running = {}
+    dropped = 0
     try:
         progress.show(done, 0, failed)
         while queue or running:
@@ -543,7 +544,7 @@ def submit_all(todo, points, store, progress, done, failed, workers, scheduler, 
                 progress.show(done, len(running), failed,
                               note=f"interrupted: waiting for the {len(running)} running points "
                                    f"(Ctrl-C again to abort)")
-                queue = []
+                dropped, queue = len(queue), []
             capacity = max(1, sum(client.nthreads().values()))
             while queue and len(running) < capacity:
                 p = queue.pop(0)
@@ -583,7 +584,7 @@ def submit_all(todo, points, store, progress, done, failed, workers, scheduler, 
         client.close()
         if cluster is not None:
             cluster.close()
-    if state["stop"]:
+    if dropped:
         raise Interrupted(f"sweep {progress.name}: interrupted; {done} of {progress.total} stored, "
                           f"run again to resume")
     return done, failed
