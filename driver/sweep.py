@@ -660,27 +660,52 @@ def load_1min():
         return float("nan")
 
 
+def machine_busy_s():
+    """CPU seconds the whole machine has spent busy since boot (/proc/stat)."""
+    try:
+        fields = [int(v) for v in Path("/proc/stat").read_text().splitlines()[0].split()[1:]]
+    except (OSError, ValueError, IndexError):
+        return float("nan")
+    idle = fields[3] + (fields[4] if len(fields) > 4 else 0)           # idle + iowait
+    return (sum(fields[:8]) - idle) / os.sysconf("SC_CLK_TCK")
+
+
+def children_cpu_s():
+    import resource
+
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
 def cmd_bench(args):
     import pandas as pd
 
+    if args.repeats < 1:
+        raise SceneError(f"--repeats {args.repeats}: expected at least 1")
     sweep = load_sweep(args.file)
     rows = []
     for repeat in range(1, args.repeats + 1):
         for workers in ((1, 2) if repeat % 2 else (2, 1)):
             with tempfile.TemporaryDirectory(prefix="sweep-bench-") as tmp:
                 load = load_1min()
+                busy0, ours0 = machine_busy_s(), children_cpu_s()
                 start = time.perf_counter()
                 proc = subprocess.run([sys.executable, "-m", "driver", "sweep", str(args.file),
                                        "--workers", str(workers), "--results", tmp, "--runs", f"{tmp}/sweep"],
                                       cwd=REPO, capture_output=True, text=True)
                 wall = time.perf_counter() - start
+                # Other users' CPU during the run, in cores: the machine's busy time less
+                # ours (the sweep, its workers and their FreeFEM runs, all waited for).
+                others = max(0.0, (machine_busy_s() - busy0) - (children_cpu_s() - ours0)) / wall
                 if proc.returncode != 0:
                     raise DriverError(f"sweep-bench: the sweep failed with --workers {workers}:\n"
                                       f"{proc.stderr.strip()[-2000:]}")
                 table = pd.read_csv(Path(tmp) / f"sweep_{sweep.name}.csv")
             rows.append(dict(kind="run", workers=workers, repeat=repeat, wall_s=wall, load_1min=load,
-                             points=len(table), converged=int((table.status == "converged").sum())))
-            print(f"repeat {repeat}, --workers {workers}: {wall:.2f} s (load {load:.2f})", flush=True)
+                             other_cores=others, points=len(table),
+                             converged=int((table.status == "converged").sum())))
+            print(f"repeat {repeat}, --workers {workers}: {wall:.2f} s (load before {load:.2f}, "
+                  f"others' CPU during the run {others:.2f} cores)", flush=True)
     runs = pd.DataFrame(rows)
     med = {w: statistics.median(runs[runs.workers == w].wall_s) for w in (1, 2)}
     summary = [dict(kind="median", workers=w, wall_s=med[w], points=len(sweep.params)) for w in (1, 2)]
