@@ -23,7 +23,7 @@ setup-system:
 	fi
 
 setup-python:
-	@if ! $(PYTHON) -c "import numpy, pandas, matplotlib, meshio, pytest, scipy" 2>/dev/null; then \
+	@if ! $(PYTHON) -c "import numpy, pandas, matplotlib, meshio, pytest, scipy, dask, distributed" 2>/dev/null; then \
 	  echo "installing Python packages from requirements.txt"; \
 	  $(PYTHON) -m pip install -q -r requirements.txt; \
 	fi
@@ -86,3 +86,19 @@ bench: setup
 .PHONY: fd3d-study
 fd3d-study: setup
 	$(PYTHON) -m driver study fd3d-convergence ball-on-slab-figure
+
+# Parameter sweeps on Dask (README "Parameter sweeps (Dask)"): one FreeFEM run per point,
+# one row per point in results/sweep_NAME.csv, resumable (runs/sweeps/NAME/rows/).
+# make sweep [SWEEP=cases/sweeps/NAME.toml] [WORKERS=2] [SCHEDULER=tcp://HOST:8786]
+SWEEP ?= cases/sweeps/smoke.toml
+WORKERS ?=
+SCHEDULER ?=
+.PHONY: sweep sweep-bench
+sweep: setup
+	$(PYTHON) -m driver sweep $(SWEEP) $(if $(strip $(WORKERS)),--workers $(WORKERS)) \
+	    $(if $(strip $(SCHEDULER)),--scheduler $(SCHEDULER))
+
+# The smoke sweep with --workers 1 and --workers 2, 3 times each in fresh folders:
+# medians and their ratio in results/sweep_bench.csv (run on an idle machine).
+sweep-bench: setup
+	$(PYTHON) -m driver sweep-bench $(SWEEP) --repeats 3

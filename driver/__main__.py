@@ -2,4 +2,7 @@ import sys
 
 from driver.cli import main
 
-sys.exit(main())
+# Guarded: Dask's worker processes are started by multiprocessing's spawn, which
+# imports this module again (as __mp_main__) in each new process.
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,4 +1,4 @@
-"""Command line: python -m driver run SCENE [--set key=value ...]."""
+"""Command line: python -m driver run SCENE [--set key=value ...], study, sweep, readme."""
 
 import argparse
 import re
@@ -52,6 +52,9 @@ def all_studies():
 
 
 def cmd_study(args):
+    from driver import sweep
+
+    sweep.configure(workers=args.workers, scheduler=args.scheduler)
     studies = all_studies()
     for name in args.names:
         studies[name]()
@@ -78,7 +81,13 @@ def build_parser():
     run.set_defaults(func=cmd_run)
     study = sub.add_parser("study", help="run a study: tables in results/, plots in plots/")
     study.add_argument("names", nargs="+", choices=sorted(all_studies()))
+    study.add_argument("--workers", type=int, help="Dask worker processes for the studies that run their "
+                       "points as a sweep (fd2d-convergence, fd2d-gamma0; default: the number of cores)")
+    study.add_argument("--scheduler", help="send those points to an existing Dask scheduler tcp://HOST:PORT")
     study.set_defaults(func=cmd_study)
+    from driver.sweep import add_parser as add_sweep_parsers
+
+    add_sweep_parsers(sub)
     readme = sub.add_parser("readme", help="refill the README's generated tables from results/*.csv")
     readme.set_defaults(func=cmd_readme)
     return parser

@@ -6,6 +6,7 @@ extended where it is undefined); this module only runs, tabulates and plots.
 """
 
 import os
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -15,6 +16,7 @@ from driver.runner import REPO, run_freefem_tool, run_scene
 from driver.scene import load_scene
 from driver.studies import (PLOTS_DIR, RESULTS_DIR, cached_reference, loglog_slope, markdown_table, progress,
                             run_point)
+from driver.sweep import file_digest, run_points, task_point
 
 DISK = REPO / "cases" / "disk_on_slab.toml"
 REFERENCE_NX = int(os.environ.get("FD2D_REFERENCE_NX", "320"))
@@ -66,6 +68,15 @@ def run_with_errors(ref, overrides, labels):
     return out
 
 
+def run_with_errors_points(ref, grid):
+    """run_with_errors as sweep points (Dask, resumable): grid = [(overrides, labels), ...].
+    The key covers the reference's results.json, so a new reference means new points."""
+    extra = {"reference": file_digest(Path(ref) / "results.json")}
+    return [task_point("driver.fd2d_studies:run_with_errors", (str(ref), overrides, labels), labels, DISK,
+                       [*overrides, "output.save_solution=true", *QUIET], extra=extra, index=i)
+            for i, (overrides, labels) in enumerate(grid)]
+
+
 def rates_of(table, group_keys):
     """Least-squares slope in h on the finest half of each ladder (at least 3 points)."""
     rows = []
@@ -83,12 +94,9 @@ def rates_of(table, group_keys):
 
 def convergence():
     ref = reference()
-    grid = [(d, t, nx) for d in (1, 2) for t in (1, 0, -1) for nx in LADDER]
-    rows = []
-    for i, (degree, theta, nx) in enumerate(grid, 1):
-        progress(i, len(grid), f"P{degree} theta={theta} NX={nx}")
-        rows.append(run_with_errors(ref, [f"method.degree={degree}", f"method.theta={theta}",
-                                          f"mesh.nx={nx}"], dict(degree=degree, theta=theta)))
+    grid = [([f"method.degree={d}", f"method.theta={t}", f"mesh.nx={nx}"], dict(degree=d, theta=t))
+            for d in (1, 2) for t in (1, 0, -1) for nx in LADDER]
+    rows = run_points(run_with_errors_points(ref, grid), "fd2d-convergence")
     table = pd.DataFrame(rows)
     RESULTS_DIR.mkdir(exist_ok=True)
     table.to_csv(RESULTS_DIR / "fd2d_convergence.csv", index=False)
@@ -146,12 +154,9 @@ def plot_convergence(table, name, title, group_keys=("degree", "theta"), label=N
 
 def gamma0_sweep():
     ref = reference()
-    grid = [(t, g) for t in (1, 0, -1) for g in GAMMA0S]
-    rows = []
-    for i, (theta, gamma0) in enumerate(grid, 1):
-        progress(i, len(grid), f"P2 NX=90 theta={theta} gamma0={gamma0:g}")
-        rows.append(run_with_errors(ref, ["mesh.nx=90", f"method.theta={theta}", f"method.gamma0={gamma0!r}"],
-                                    dict(degree=2, theta=theta, gamma0=gamma0)))
+    grid = [(["mesh.nx=90", f"method.theta={t}", f"method.gamma0={g!r}"], dict(degree=2, theta=t, gamma0=g))
+            for t in (1, 0, -1) for g in GAMMA0S]
+    rows = run_points(run_with_errors_points(ref, grid), "fd2d-gamma0")
     table = pd.DataFrame(rows)
     if "h1_body1" in table:
         table["h1_both"] = np.sqrt(table.h1_body1 ** 2 + table.h1_body2 ** 2)
