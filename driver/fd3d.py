@@ -2,17 +2,17 @@
 
 Body 1 is a ball, body 2 a slab {z < top} of the box, held strongly on the box
 bottom z = zmin. The rigid motions of the floating ball are removed by fixing
-u1_x and u1_y at the nodes nearest to two points A, B (on a vertical line through
-the ball: translations in x, y and rotations about x, y) and u1_y at the node
-nearest to a third point C (off that line in x: rotation about z), plus a mass
-term eps int u1.v1 (z translation is carried by the contact).
+u1_x and u1_y at two points A, B (on a vertical line through the ball:
+translations in x, y and rotations about x, y) and u1_y at a third point C (off
+that line in x: rotation about z), by a penalty on the values at the points, plus
+a mass term eps int u1.v1 (z translation is carried by the contact).
 """
 
 from driver.errors import SceneError
 from driver.fd2d import body_schema, lame
 from driver.schema import ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_adapt
 
-STABILIZATIONS = ("none", "neighbour")
+STABILIZATIONS = ("auto", "none", "neighbour")
 
 
 SCHEMA = {
@@ -23,6 +23,12 @@ SCHEMA = {
     },
     "mesh": {
         "nx": Field("int", default=10, check=at_least(2), doc="cells per side of the box (h = width/nx)"),
+        "grade_h": Field("float", default=0.0, check=at_least(0.0),
+                         doc="0: uniform; else one tetgen pass refines toward the contact point to this edge size"),
+        "grade_radius": Field("float", default=0.1, check=at_least(0.0),
+                              doc="edge size grade_h within this distance of the contact point"),
+        "grade_slope": Field("float", default=0.25, check=positive,
+                             doc="growth of the edge size with the distance beyond grade_radius"),
     },
     "body1": body_schema({
         "shape": Field("str", default="ball", choices=("ball",)),
@@ -45,7 +51,8 @@ SCHEMA = {
         "degree": Field("int", default=1, choices=(1, 2)),
         "theta": Field("float", default=-1.0),
         "gamma0": Field("float", default=1.0 / 200.0, check=positive),
-        "stabilization": Field("str", default="none", choices=STABILIZATIONS),
+        "stabilization": Field("str", default="auto", choices=STABILIZATIONS,
+                               doc="auto: neighbour for theta > 0 (coercivity on cut elements), none otherwise"),
         "rho": Field("float", default=0.25, check=open_interval(0.0, 1.0 + 1e-12)),
     },
     "solver": {
@@ -119,6 +126,9 @@ def freefem_args(scene, mesh_file=""):
     for key in ("xmin", "xmax", "ymin", "ymax", "zmin", "zmax"):
         put(key, geo[key])
     put("nx", scene["mesh"]["nx"])
+    if scene["mesh"]["grade_h"] > 0:
+        for key in ("grade_h", "grade_radius", "grade_slope"):
+            put(key, scene["mesh"][key])
     for axis, value in zip("xyz", ball["centre"]):
         put(f"ball_c{axis}", value)
     put("ball_r", ball["radius"])
