@@ -111,3 +111,59 @@ def test_neighbour_stabilization_rescues_theta_one(run_scene):
     assert r["newton"]["iterations"] <= 6
     assert r["contact"]["force_balance_error"] < 1e-6
     assert r["cut"]["case_b"] > 0
+
+
+def error_tool(ref, run, tmp_path, *extra):
+    import json
+    out = tmp_path / f"errors{len(list(tmp_path.glob('errors*.json')))}.json"
+    proc = subprocess.run(["FreeFem++", "-nw", "-v", "0", "freefem/fd_error_3d.edp", "-ref", str(ref),
+                           "-run", str(run), "-out", str(out), *extra],
+                          cwd=REPO, env=freefem_env(), capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    return json.loads(out.read_text())
+
+
+def test_error_routine_quadrature_path_matches_the_nested_one(run_scene, tmp_path):
+    # Non-nested meshes (a graded reference) integrate the error with the coarse field
+    # evaluated at the reference quadrature points (lifted to the coarse background,
+    # extended next to the body); on nested meshes that path must give the exact
+    # nested figures, and on the run itself shifted by c exactly |c| |Omega_i|^(1/2).
+    ref = run_scene(BALL, "mesh.nx=8", "method.degree=2", "output.save_solution=true", "output.vtu=false")
+    coarse = run_scene(BALL, "mesh.nx=4", "output.save_solution=true", "output.vtu=false")
+    nested = error_tool(ref.folder, coarse.folder, tmp_path)
+    direct = error_tool(ref.folder, coarse.folder, tmp_path, "-direct", "1")
+    assert nested["nested"] == 1 and direct["nested"] == 0
+    # the two paths extend the coarse field beyond its body differently (per
+    # reference node / per outside element): equal up to that thin shell
+    assert nested["body1"]["nodes_read_by_extension"] > 0 and direct["body1"]["elements_extended"] > 0
+    for body in ("body1", "body2"):
+        for key in ("l2_rel", "h1_rel"):
+            assert direct[body][key] == pytest.approx(nested[body][key], rel=2e-3)
+        assert 0.01 < direct[body]["h1_rel"] < 2
+    shifted = error_tool(ref.folder, ref.folder, tmp_path, "-direct", "1", "-shift_x", "2e-3")
+    for body in ("body1", "body2"):
+        expected = 2e-3 * shifted[body]["volume_ref"] ** 0.5
+        assert shifted[body]["l2_abs"] == pytest.approx(expected, rel=1e-8)
+        assert shifted[body]["h1_abs"] == pytest.approx(expected, rel=1e-8)
+
+
+def test_graded_background_solves_and_its_errors_are_measured(run_scene, tmp_path):
+    # tetgen refines cube(6) toward the contact point (the references' meshes): the
+    # contact points must all be read on the body spaces (FreeFEM's location in a
+    # submesh missed some there; evaluation goes through the background), the
+    # solve balances, and the error tool takes the non-nested pair.
+    graded = run_scene(BALL, "mesh.nx=6", "mesh.grade_h=0.04", "mesh.grade_radius=0.1",
+                       "output.save_solution=true", "output.vtu=false")
+    uniform = run_scene(BALL, "mesh.nx=6", "output.save_solution=true", "output.vtu=false")
+    r = graded.results
+    assert r["grade_h"] == pytest.approx(0.04)
+    assert r["elements"] > 2 * 6 * 6 ** 3
+    assert r["newton"]["converged_by"] in ("tolerance", "roundoff_floor")
+    assert r["contact"]["force_balance_error"] < 0.01
+    assert centre_z(graded) == pytest.approx(centre_z(uniform), rel=0.3)
+    p2 = run_scene(BALL, "mesh.nx=6", "mesh.grade_h=0.04", "mesh.grade_radius=0.1", "method.degree=2",
+                   "output.save_solution=true", "output.vtu=false")
+    err = error_tool(p2.folder, uniform.folder, tmp_path)
+    assert err["nested"] == 0
+    for body in ("body1", "body2"):
+        assert 0.01 < err[body]["h1_rel"] < 1.5 and err[body]["l2_rel"] < err[body]["h1_rel"]
