@@ -84,11 +84,14 @@ bench: setup
 	$(PYTHON) -m driver readme
 
 # Fictitious-domain ball on slab (3D): P1 (theta = 1, 0, -1) and P2 ladders against a
-# P2 reference (nx = FD3D_REFERENCE_NX, default 30, computed once into runs/reference/),
-# cost against DOFs, the centre-cut von Mises figure.
+# P2 reference graded toward the contact point (cube(15) refined by tetgen to h = 1/70
+# within 0.1 of it; FD3D_REFERENCE_* in driver/fd3d_studies.py; computed once into
+# runs/reference/), cost against DOFs, the centre-cut von Mises figure; then the
+# estimator-driven tetgen refinement against uniform refinement (fd3d-adaptive).
 .PHONY: fd3d-study
 fd3d-study: setup
-	$(PYTHON) -m driver study fd3d-convergence ball-on-slab-figure
+	$(PYTHON) -m driver study fd3d-convergence ball-on-slab-figure fd3d-adaptive
+	$(PYTHON) -m driver readme
 
 # Parameter sweeps on Dask (README "Parameter sweeps (Dask)"): one FreeFEM run per point,
 # one row per point in results/sweep_NAME.csv, resumable (runs/sweeps/NAME/rows/).

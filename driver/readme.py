@@ -165,6 +165,49 @@ def hard_conditioning():
     return markdown_table(conditioning_summary(pd.read_csv(RESULTS / "hard_conditioning.csv")))
 
 
+def fd3d_rates():
+    t = pd.read_csv(RESULTS / "fd3d_rates.csv")
+    rows = []
+    for norm, body, name in (("L2", 1, "ball"), ("L2", 2, "slab"), ("H1", 1, "ball"), ("H1", 2, "slab")):
+        row = {"rate (h = 1/nx, nx used)": f"{norm} body {body} ({name})"}
+        for degree in (1, 2):
+            for theta in (1, 0, -1):
+                pick = t[(t.degree == degree) & (t.theta == theta) & (t.body == body) & (t.norm == norm)]
+                row[f"P{degree} th={theta}"] = (f"{pick.rate.iloc[0]:.2f} ({pick.nx_used.iloc[0]})"
+                                               if len(pick) else "-")
+        rows.append(row)
+    return markdown_table(pd.DataFrame(rows))
+
+
+def fd3d_convergence():
+    t = pd.read_csv(RESULTS / "fd3d_convergence.csv")
+    t = t[(t.theta == -1) | (t.status != "converged")].sort_values(["degree", "nx"])
+    t["status"] = t["status"].where(t["status"] != "reference", "reference")
+    columns = ["degree", "theta", "status", "nx", "dofs", "l2_body1", "l2_body2", "h1_body1", "h1_body2",
+               "newton_iterations", "wall_s", "peak_rss_mb"]
+    return markdown_table(t[columns], digits=3)
+
+
+def fd3d_cost():
+    return markdown_table(pd.read_csv(RESULTS / "fd3d_cost.csv"), digits=3)
+
+
+def fd3d_adaptive():
+    from driver.studies import loglog_slope
+
+    t = pd.read_csv(RESULTS / "fd3d_adaptive.csv")
+    rows = []
+    for kind in ("uniform", "adaptive"):
+        part = t[t.refinement == kind].sort_values("dofs")
+        rows.append({"refinement": kind, "solves": len(part),
+                     "DOFs": f"{int(part.dofs.iloc[0])} .. {int(part.dofs.iloc[-1])}",
+                     "eta": f"{part.eta.iloc[0]:.3g} .. {part.eta.iloc[-1]:.3g}",
+                     "eta_2 (stress jumps)": f"{part.eta2.iloc[0]:.3g} .. {part.eta2.iloc[-1]:.3g}",
+                     "slope of eta in DOFs": f"{loglog_slope(part.dofs, part.eta):.3f}",
+                     "ball volume (last)": f"{part.volume_ball.iloc[-1]:.5f}"})
+    return markdown_table(pd.DataFrame(rows))
+
+
 TABLES = {
     "hard_cases": hard_cases,
     "hard_gamma_scaling": hard_gamma_scaling,
@@ -184,6 +227,10 @@ TABLES = {
     "fd2d_rates": fd2d_rates,
     "fd2d_gamma0": fd2d_gamma0,
     "fd2d_stabilization": fd2d_stabilization,
+    "fd3d_rates": fd3d_rates,
+    "fd3d_convergence": fd3d_convergence,
+    "fd3d_cost": fd3d_cost,
+    "fd3d_adaptive": fd3d_adaptive,
 }
 
 
