@@ -273,7 +273,7 @@ FIGURE_SETTINGS = ["method.degree=2", "method.theta=-1", "mesh.nx=10", f"mesh.gr
 
 def figure_run():
     """The run behind the figure: P2 on cube(10) graded to h = 1/40 within 0.1 of the
-    contact point (57k DOFs, about 1.5 min; the centre cut is sampled at 1/120
+    contact point (77k DOFs, about 3 min; the centre cut is sampled at 1/120
     whatever the mesh)."""
     folder = REPO / "runs" / "fd3d_figure"
 
