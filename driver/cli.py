@@ -2,9 +2,11 @@
 
 import argparse
 import re
+import signal
 import sys
 
 from driver.errors import DriverError
+from driver.runner import Interrupted
 
 
 def cmd_run(args):
@@ -13,7 +15,8 @@ def cmd_run(args):
 
     scene, module = load_scene(args.scene, args.set)
     echo = progress_echo(args.verbose)
-    results, folder, wall = run_scene(scene, module, out_dir=args.out, script=args.script, echo=echo)
+    results, folder, wall = run_scene(scene, module, out_dir=args.out, script=args.script, echo=echo,
+                                      replace=args.replace)
     print(format_summary(scene, module, results, folder, wall))
     return 0
 
@@ -75,7 +78,10 @@ def build_parser():
     run.add_argument("scene", help="scene file (TOML), e.g. cases/square_slip_separation.toml")
     run.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                      help="override a scene value by dotted key, e.g. mesh.nx=80 (repeatable)")
-    run.add_argument("--out", help="run folder (default runs/NAME-TIME-HASH)")
+    run.add_argument("--out", help="run folder (default runs/NAME-TIME-HASH); must be new, empty, "
+                     "or a previous run with --replace")
+    run.add_argument("--replace", action="store_true",
+                     help="replace the previous run in --out once the new one has converged")
     run.add_argument("--script", help="use this .edp instead of the scene's script (development)")
     run.add_argument("-v", "--verbose", action="store_true", help="echo FreeFEM's output")
     run.set_defaults(func=cmd_run)
@@ -101,11 +107,25 @@ def main(argv=None):
     if hasattr(args, "set"):
         args.set = [item for chunk in args.set
                     for item in re.split(r"\s+(?=[A-Za-z_][\w.]*=)", chunk.strip()) if item]
+    previous = {sig: signal.signal(sig, raise_interrupted) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         return args.func(args)
     except DriverError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return exc.exit_code
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+    except (Interrupted, KeyboardInterrupt) as exc:
+        signum = exc.signum if isinstance(exc, Interrupted) else signal.SIGINT
+        detail = f" ({exc.detail})" if isinstance(exc, Interrupted) and exc.detail else ""
+        print(f"error: interrupted by {signal.Signals(signum).name}{detail}", file=sys.stderr)
+        return 128 + signum
+    except OSError as exc:
+        print(f"error: {exc.strerror or exc}" + (f": {exc.filename}" if exc.filename else ""), file=sys.stderr)
+        return 4
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def raise_interrupted(signum, frame):
+    """SIGINT and SIGTERM end a run cleanly: FreeFEM stopped, its folder marked failed."""
+    raise Interrupted(signum)

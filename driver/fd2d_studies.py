@@ -38,7 +38,7 @@ def reference(nx=REFERENCE_NX):
 
     def compute():
         scene, module = load_scene(DISK, [f"mesh.nx={nx}", "output.save_solution=true", *QUIET])
-        run_scene(scene, module, out_dir=folder)
+        run_scene(scene, module, out_dir=folder, replace=True)
 
     return cached_reference(folder, f"the disk-on-slab reference (P2, NX = {nx})", compute)
 

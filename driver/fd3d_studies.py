@@ -80,7 +80,7 @@ def reference():
 
     def compute():
         scene, module = load_scene(BALL, settings)
-        run_scene(scene, module, out_dir=folder)
+        run_scene(scene, module, out_dir=folder, replace=True)
 
     return cached_reference(folder, f"the ball-on-slab reference ({reference_label()})", compute)
 
@@ -113,7 +113,7 @@ def solve(degree, theta, nx):
                  "output.save_solution=true", *QUIET]
     scene, module = load_scene(BALL, overrides)
     try:
-        run_scene(scene, module, out_dir=folder)
+        run_scene(scene, module, out_dir=folder, replace=True)
     except SceneError:
         raise
     except DriverError as exc:
@@ -279,7 +279,7 @@ def figure_run():
 
     def compute():
         scene, module = load_scene(BALL, FIGURE_SETTINGS)
-        run_scene(scene, module, out_dir=folder)
+        run_scene(scene, module, out_dir=folder, replace=True)
 
     return cached_reference(folder, "the ball-on-slab figure run (P2, cube(10) graded to h = 1/40)", compute)
 

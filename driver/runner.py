@@ -1,8 +1,10 @@
 """Launch FreeFEM on a scene, each run in its own folder, published atomically.
 
-FreeFEM writes into a staging folder runs/.staging/ID; the folder is renamed to
-runs/ID only when the run converged and its results.json parses, otherwise to
-runs/ID.failed (which holds failure.json and the log, never results.json).
+FreeFEM writes into a hidden staging folder .ID.staging beside the run folder ID
+(runs/ID by default, or --out); the staging folder is renamed to ID only when the
+run converged and its results.json parses, otherwise to ID.failed (which holds
+failure.json and the log, never results.json). See check_output_folder for what
+an --out may be.
 """
 
 import datetime
@@ -11,12 +13,14 @@ import json
 import os
 import re
 import shutil
+import signal
 import subprocess
 import threading
 import time
 from pathlib import Path
 
-from driver.errors import FreeFemError, NewtonError, SceneError
+from driver.errors import DriverError, FreeFemError, NewtonError, SceneError
+from driver.resources import check_fits
 
 REPO = Path(__file__).resolve().parent.parent
 FREEFEM_DIR = REPO / "freefem"
@@ -83,85 +87,237 @@ def run_id(scene, args):
     return f"{scene['scene']['name']}-{stamp}-{digest}"
 
 
-def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None):
-    """Run FreeFEM for a validated scene. Returns (results dict, run folder, wall seconds)."""
-    runs_dir = Path(runs_dir or REPO / "runs")
+# Every folder the driver creates holds this file: the driver only ever replaces or
+# removes folders that carry it.
+MARKER = ".fdcontact-run"
+
+
+def is_package_run(folder):
+    """A folder this package wrote (runs made before the marker existed: their three inputs)."""
+    return (folder / MARKER).is_file() or all(
+        (folder / name).is_file() for name in ("scene.json", "command.txt", "freefem.log"))
+
+
+def refuse(message):
+    raise SceneError(message)
+
+
+def check_output_folder(final, replace):
+    """Refuse an --out that would lose data: a place that is not a run of this package,
+    a previous run without replace=True, the checkout, its parents, the home folder."""
+    protected = {Path("/"), Path.home().resolve(), REPO}
+    if final in protected or final in REPO.parents or final in Path.home().resolve().parents:
+        refuse(f"--out {final}: refusing to write a run into the checkout, its parent folders "
+               f"or the home folder; name a new folder")
+    if final.is_symlink() or (final.exists() and not final.is_dir()):
+        refuse(f"--out {final}: exists and is not a folder")
+    if final.is_dir():
+        if is_package_run(final):
+            if (final / "results.json").is_file() and not replace:
+                refuse(f"--out {final}: holds a previous run; pass --replace to replace it "
+                       f"(the old run stays until the new one has converged)")
+        elif any(final.iterdir()):
+            refuse(f"--out {final}: exists and is not a run of this package; "
+                   f"name a new or empty folder (nothing in it was touched)")
+
+
+def pid_alive(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def claim_staging(staging, final):
+    """Create the staging folder exclusively: one writer per output folder."""
+    staging.parent.mkdir(parents=True, exist_ok=True)
+    for _ in range(2):
+        try:
+            staging.mkdir()
+        except FileExistsError:
+            try:
+                owner = int((staging / "driver.pid").read_text())
+            except (OSError, ValueError):
+                owner = None
+            if owner is not None and pid_alive(owner) or not is_package_run(staging):
+                refuse(f"--out {final}: another run is writing to it"
+                       + (f" (driver pid {owner})" if owner else f" ({staging} exists)"))
+            shutil.rmtree(staging)   # left by a driver that was killed
+            continue
+        (staging / MARKER).write_text("fdcontact run folder\n")
+        (staging / "driver.pid").write_text(f"{os.getpid()}\n")
+        return
+    refuse(f"--out {final}: could not claim {staging}")
+
+
+def failed_folder(final):
+    """Where a failed run's log goes: FINAL.failed (replacing only an earlier failure)."""
+    for k in range(1, 1000):
+        failed = final.with_name(final.name + (".failed" if k == 1 else f".failed-{k}"))
+        if not failed.exists():
+            return failed
+        if is_package_run(failed) and not (failed / "results.json").exists():
+            shutil.rmtree(failed)
+            return failed
+    refuse(f"{final}: too many failed runs beside it")
+
+
+def publish(staging, final):
+    """Move the finished run into place; a previous run is removed only after that."""
+    old = None
+    if final.is_dir():
+        old = final.with_name(f".{final.name}.replaced-{os.getpid()}")
+        final.rename(old)
+    staging.rename(final)
+    if old is not None:
+        if is_package_run(old):
+            shutil.rmtree(old)
+        else:
+            old.rmdir()   # the empty folder the user named
+
+
+class Interrupted(Exception):
+    """SIGINT or SIGTERM during a run (raised by the command line's signal handler)."""
+
+    def __init__(self, signum, detail=""):
+        super().__init__(signum)
+        self.signum = signum
+        self.detail = detail
+
+
+def stop_process(proc):
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None, replace=False):
+    """Run FreeFEM for a validated scene. Returns (results dict, run folder, wall seconds).
+
+    FreeFEM writes into a hidden staging folder beside the run folder, claimed
+    exclusively; the staging folder becomes the run folder only when the run
+    converged and its results.json parses, otherwise FINAL.failed (its log,
+    failure.json, never results.json). The run folder itself is left as it was.
+    """
+    runs_dir = Path(runs_dir or REPO / "runs").resolve()
     script = Path(script) if script else FREEFEM_DIR / f"{scene['scene']['script']}.edp"
     if not script.is_file():
         raise SceneError(f"{scene['_source']}: FreeFEM script not found: {script}")
     binary = freefem_binary()
     probe_args = module.freefem_args(scene)
-    final = Path(out_dir) if out_dir else runs_dir / run_id(scene, probe_args)
-    staging = final.parent / ".staging" / final.name   # same filesystem: rename is atomic
-    if staging.exists():
-        shutil.rmtree(staging)
-    staging.mkdir(parents=True)
-    (staging / "scene.json").write_text(json.dumps(
-        {k: v for k, v in scene.items() if not k.startswith("_")}, indent=2, default=str))
-
+    if out_dir:
+        final = Path(out_dir).expanduser().resolve()
+    else:
+        base = runs_dir / run_id(scene, probe_args)
+        final, k = base, 1
+        while final.exists() or final.with_name(f".{final.name}.staging").exists():
+            k += 1
+            final = base.with_name(f"{base.name}-{k}")
+    check_output_folder(final, replace)
+    check_fits(scene, scene["_source"])
+    staging = final.with_name(f".{final.name}.staging")   # same filesystem: rename is atomic
+    claim_staging(staging, final)
+    proc = None
     try:
+        (staging / "scene.json").write_text(json.dumps(
+            {k: v for k, v in scene.items() if not k.startswith("_")}, indent=2, default=str))
         mesh_file = module.prepare_mesh(scene, staging, run_command)
         args = module.freefem_args(scene, mesh_file=mesh_file)
-    except FreeFemError:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    # -Dmacro flags must follow the script name; everything else is -key value.
-    command = [binary, "-nw", "-v", "0", str(script)] + args + ["-outdir", str(staging)]
-    # FreeFEM's output is block-buffered on a pipe: line-buffer it for progress.
-    stdbuf = shutil.which("stdbuf")
-    launch = [stdbuf, "-oL", "-eL"] + command if stdbuf else command
-    (staging / "command.txt").write_text(" ".join(command) + "\n")
-    start = time.perf_counter()
-    with open(staging / "freefem.log", "w") as log:
-        proc = subprocess.Popen(launch, cwd=REPO, env=freefem_env(), stdout=subprocess.PIPE,
-                                stderr=subprocess.STDOUT, text=True)
-        peak_kb = [0]
-        watcher = threading.Thread(target=watch_peak_memory, args=(proc.pid, peak_kb), daemon=True)
-        watcher.start()
-        for line in proc.stdout:
-            log.write(line)
-            if echo is not None:
-                echo(line.rstrip("\n"))
-        proc.wait()
-    wall = time.perf_counter() - start
-    log_text = (staging / "freefem.log").read_text()
-    name = scene["scene"]["name"]
+        # -Dmacro flags must follow the script name; everything else is -key value.
+        command = [binary, "-nw", "-v", "0", str(script)] + args + ["-outdir", str(staging)]
+        # FreeFEM's output is block-buffered on a pipe: line-buffer it for progress.
+        stdbuf = shutil.which("stdbuf")
+        launch = [stdbuf, "-oL", "-eL"] + command if stdbuf else command
+        (staging / "command.txt").write_text(" ".join(command) + "\n")
+        start = time.perf_counter()
+        with open(staging / "freefem.log", "w") as log:
+            proc = subprocess.Popen(launch, cwd=REPO, env=freefem_env(), stdout=subprocess.PIPE,
+                                    stderr=subprocess.STDOUT, text=True, errors="replace")
+            peak_kb = [0]
+            watcher = threading.Thread(target=watch_peak_memory, args=(proc.pid, peak_kb), daemon=True)
+            watcher.start()
+            for line in proc.stdout:
+                log.write(line)
+                log.flush()   # the log of a running job can be followed (tail -f)
+                if echo is not None:
+                    echo(line.rstrip("\n"))
+            proc.wait()
+        wall = time.perf_counter() - start
+        results = check_outcome(proc.returncode, staging, scene["scene"]["name"])
+        results["wall_s"] = wall
+        results["peak_rss_mb"] = peak_kb[0] / 1024.0
+        (staging / "results.json").write_text(json.dumps(results, indent=1))
+        (staging / "driver.pid").unlink()
+        publish(staging, final)
+        return results, final, wall
+    except BaseException as error:
+        if proc is not None:
+            stop_process(proc)
+        if isinstance(error, Interrupted | KeyboardInterrupt):
+            signum = error.signum if isinstance(error, Interrupted) else signal.SIGINT
+            error = Interrupted(signum)
+            reason = f"interrupted by {signal.Signals(signum).name}"
+        elif isinstance(error, OSError):
+            reason = f"{error.strerror or error} ({error.filename or staging})"
+            error = FreeFemError(f"scene {scene['scene']['name']}: cannot write the run: {reason}")
+        else:
+            reason = str(error.args[0]) if error.args else type(error).__name__
+        keep_failure(staging, final, error, reason)
+        raise error from None
 
-    def fail(error):
+
+def keep_failure(staging, final, error, reason):
+    """Turn the staging folder into FINAL.failed (never with a results.json); name it in the error."""
+    try:
         (staging / "results.json").unlink(missing_ok=True)
-        failed = final.with_name(final.name + ".failed")
-        if failed.exists():
-            shutil.rmtree(failed)
+        (staging / "driver.pid").unlink(missing_ok=True)
+        if not (staging / "failure.json").is_file():
+            (staging / "failure.json").write_text(json.dumps({"status": "failed", "message": reason}) + "\n")
+        failed = failed_folder(final)
         staging.rename(failed)
-        error.args = (f"{error.args[0]}\n  (log and inputs kept in {failed})",)
-        raise error
+        where = f"log and inputs kept in {failed}"
+    except OSError:
+        shutil.rmtree(staging, ignore_errors=True)
+        where = "nothing kept"
+    unchanged = " is unchanged" if final.exists() else " was not created"
+    if isinstance(error, DriverError):
+        error.args = (f"{error.args[0]}\n  ({where}; {final}{unchanged})",)
+    elif isinstance(error, Interrupted):
+        error.detail = f"FreeFEM stopped; {where}; {final}{unchanged}"
 
-    if proc.returncode == 3 and (staging / "failure.json").is_file():
+
+def check_outcome(returncode, staging, name):
+    """Map FreeFEM's exit and files to a result dict or a DriverError."""
+    log_text = (staging / "freefem.log").read_text(errors="replace")
+    if returncode == 3 and (staging / "failure.json").is_file():
         failure = parse_json_file(staging / "failure.json")
-        fail(NewtonError(f"scene {name}: {failure.get('message', 'Newton failure')} "
-                         f"(last residual {failure.get('last_residual')})"))
-    if proc.returncode == 2 and "INPUT ERROR" in log_text:
-        fail(SceneError(f"scene {name}: FreeFEM rejected the input:\n  {freefem_message(log_text)}"))
-    if proc.returncode != 0:
-        fail(FreeFemError(f"scene {name}: FreeFEM failed (exit {proc.returncode}):\n  "
-                          f"{freefem_message(log_text)}"))
+        raise NewtonError(f"scene {name}: {failure.get('message', 'Newton failure')} "
+                          f"(last residual {failure.get('last_residual')})")
+    if returncode == 2 and "INPUT ERROR" in log_text:
+        raise SceneError(f"scene {name}: FreeFEM rejected the input:\n  {freefem_message(log_text)}")
+    if returncode < 0:
+        raise FreeFemError(f"scene {name}: FreeFEM was killed by {signal.Signals(-returncode).name}"
+                           + (" (out of memory?)" if -returncode == signal.SIGKILL else "")
+                           + f":\n  {freefem_message(log_text)}")
+    if returncode != 0:
+        raise FreeFemError(f"scene {name}: FreeFEM failed (exit {returncode}):\n  {freefem_message(log_text)}")
     results_path = staging / "results.json"
     if not results_path.is_file():
-        fail(FreeFemError(f"scene {name}: FreeFEM exited normally but wrote no results.json"))
+        raise FreeFemError(f"scene {name}: FreeFEM exited normally but wrote no results.json")
     try:
         results = parse_json_file(results_path)
     except (ValueError, OSError) as exc:
-        fail(FreeFemError(f"scene {name}: results.json is unreadable ({exc})"))
+        raise FreeFemError(f"scene {name}: results.json is unreadable ({exc})") from None
     if results.get("status") != "converged":
-        fail(NewtonError(f"scene {name}: run status is {results.get('status')!r}"))
-    results["wall_s"] = wall
-    results["peak_rss_mb"] = peak_kb[0] / 1024.0
-    results_path.write_text(json.dumps(results, indent=1))
-    if final.exists():
-        shutil.rmtree(final)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    staging.rename(final)
-    return results, final, wall
+        raise NewtonError(f"scene {name}: run status is {results.get('status')!r}")
+    return results
 
 
 def run_freefem_tool(script, args, output, what):

@@ -5,14 +5,25 @@ a module here with its schema and its mapping to FreeFEM command-line flags.
 """
 
 import copy
+import re
 import tomllib
 from pathlib import Path
 
 from driver.errors import SceneError
 from driver.schema import Field, validate
 
+SAFE_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}")
+
+
+def safe_name(value):
+    """A scene name becomes part of a folder name: no path separators, quotes or spaces."""
+    if not SAFE_NAME.fullmatch(value):
+        return "must be 1-100 letters, digits, '_', '-' or '.', not starting with '.' or '-'"
+    return None
+
+
 SCENE_HEADER = {
-    "name": Field("str", doc="scene name, used for run folders"),
+    "name": Field("str", check=safe_name, doc="scene name, used for run folders"),
     "script": Field("str", doc="FreeFEM top-level script (without .edp)"),
     "description": Field("str", default=""),
 }
@@ -60,14 +71,27 @@ def apply_override(data, path, value, source):
         node[last] = value
 
 
+def read_text_file(path, what):
+    """The UTF-8 text of a scene or sweep file, or one SceneError naming why not."""
+    try:
+        if path.is_dir():
+            raise SceneError(f"{path}: is a folder, not a {what}")
+        data = path.read_bytes()
+    except OSError as exc:
+        raise SceneError(f"{path}: cannot read {what} ({exc.strerror})") from None
+    if b"\0" in data:
+        raise SceneError(f"{path}: not a text file (binary data); a {what} is TOML text")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise SceneError(f"{path}: not UTF-8 text (byte {exc.start}); a {what} is TOML text") from None
+
+
 def load_scene(path, overrides=()):
     """Read, override and validate a scene; return (scene dict, script module)."""
     path = Path(path)
     source = str(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise SceneError(f"{source}: cannot read scene file ({exc.strerror})") from None
+    text = read_text_file(path, "scene file")
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

@@ -136,7 +136,7 @@ def square_reference():
     """Adaptive P2, theta = -1, about 1e6 DOFs."""
     def compute():
         scene, module = load_scene(SQUARE, SQUARE_REFERENCE_SETTINGS)
-        run_scene(scene, module, out_dir=SQUARE_REFERENCE)
+        run_scene(scene, module, out_dir=SQUARE_REFERENCE, replace=True)
 
     return cached_reference(SQUARE_REFERENCE, "the square reference (adaptive P2, ~1e6 DOFs)", compute)
 

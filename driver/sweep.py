@@ -199,12 +199,12 @@ def load_sweep(path):
     """Read and expand a sweep file; every point is validated as a scene before anything runs."""
     from driver.scene import load_scene
 
+    from driver.scene import read_text_file
+
     path = Path(path)
     source = str(path)
     try:
-        data = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise SceneError(f"{source}: cannot read sweep file ({exc.strerror})") from None
+        data = tomllib.loads(read_text_file(path, "sweep file"))
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"{source}: malformed TOML: {exc}") from None
     unknown = set(data) - TOP_KEYS

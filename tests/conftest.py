@@ -1,6 +1,7 @@
 """Helpers: run the driver the way a user does and read what FreeFEM wrote."""
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -14,9 +15,10 @@ REPO = Path(__file__).resolve().parent.parent
 
 
 def run_cli(*args, cwd=REPO):
-    """python -m driver ARGS; returns the CompletedProcess (never raises)."""
+    """python -m driver ARGS from any working folder; returns the CompletedProcess (never raises)."""
+    env = dict(os.environ, PYTHONPATH=str(REPO))
     return subprocess.run([sys.executable, "-m", "driver", *args], cwd=cwd,
-                          capture_output=True, text=True)
+                          capture_output=True, text=True, env=env)
 
 
 def run_freefem(script, *args):
