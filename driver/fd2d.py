@@ -9,7 +9,7 @@ from driver.errors import SceneError
 from driver.schema import ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_adapt
 
 STABILIZATIONS = ("auto", "none", "neighbour", "ghost")
-GAMMA_SCALINGS = ("none", "body1", "mean_compliance")
+GAMMA_SCALINGS = ("shear", "none", "body1", "mean_compliance")
 
 
 def body_schema(shape_fields, force):
@@ -43,7 +43,8 @@ SCHEMA = {
     }, [0.0, 0.0]),
     "rigid": {
         "mass_eps": Field("float", default=1e-7, check=at_least(0.0),
-                          doc="mass term eps int u1.v1 against the floating disk's rigid motions"),
+                          doc="mass term eps muStar int u1.v1 against the floating disk's rigid motions "
+                              "(relative to the shear modulus muStar, see method.gamma_scaling)"),
         "fix_x_points": Field("vector", default=[0.0, 0.0, 0.0, 0.1], length=4,
                               doc="u1_x = 0 at the nodes nearest to these two points (x1, y1, x2, y2)"),
     },
@@ -55,10 +56,11 @@ SCHEMA = {
                                doc="auto: ghost for theta > 0 (coercivity on cut elements), none otherwise"),
         "rho": Field("float", default=0.25, check=open_interval(0.0, 1.0 + 1e-12)),
         "ghost_gamma": Field("float", default=1e-2, check=positive),
-        "gamma_scaling": Field("str", default="none", choices=GAMMA_SCALINGS,
-                               doc="none: gamma = gamma0 h_K; body1: gamma = gamma0 h_K / E1 (Young modulus "
-                                   "of the disk, whose sigma_n enters the Nitsche terms); mean_compliance: "
-                                   "gamma = gamma0 h_K (1/E1 + 1/E2)/2"),
+        "gamma_scaling": Field("str", default="shear", choices=GAMMA_SCALINGS,
+                               doc="shear: gamma = gamma0 h_K / muStar, muStar = 2 mu1 mu2/(mu1 + mu2) (gamma0 "
+                                   "dimensionless); none: gamma = gamma0 h_K (gamma0 in 1/stress); body1: "
+                                   "gamma = gamma0 h_K / E1 (Young modulus of the disk, whose sigma_n enters the "
+                                   "Nitsche terms); mean_compliance: gamma = gamma0 h_K (1/E1 + 1/E2)/2"),
     },
     "solver": {
         "newton_tol": Field("float", default=1e-9, check=positive),
@@ -71,6 +73,9 @@ SCHEMA = {
                                  doc="re-use the factorization (GMRES) when fewer points changed"),
         "time_final_solve": Field("bool", default=False,
                                   doc="benchmarks: time one extra factorization and solve of the final system"),
+        "allow_unbalanced": Field("bool", default=False,
+                                  doc="keep a run whose pins or mass term carry more than 1e-6 of the disk's "
+                                      "load (flagged in results.json 'balance'); refused (exit 3) otherwise"),
     },
     "adapt": dict(ADAPT_SCHEMA, warm_start=Field(
         "int", default=1, choices=(0, 1, 2),
@@ -134,9 +139,9 @@ def check(scene, source):
                              f"the box between its bottom and the slab top")
     if scene["adapt"]["steps"] > 0 and not scene["output"]["estimators"]:
         raise SceneError(f"{source}: key 'output.estimators': adaptation (adapt.steps > 0) needs the estimators")
-    if line and scene["method"]["gamma_scaling"] != "none":
+    if line and scene["method"]["gamma_scaling"] not in ("none", "shear"):
         raise SceneError(f"{source}: key 'method.gamma_scaling': {scene['method']['gamma_scaling']!r} scales "
-                         f"the contact gamma by the moduli; with body2.bottom_line use 'none'")
+                         f"the contact gamma by the moduli; with body2.bottom_line use 'shear' or 'none'")
     fix = scene["rigid"]["fix_x_points"]
     for px, py in (fix[:2], fix[2:]):
         if (px - cx) ** 2 + (py - cy) ** 2 >= r ** 2:
@@ -182,6 +187,7 @@ def freefem_args(scene, mesh_file=""):
     put("predictor_steps", solver["predictor_steps"])
     put("refactor_points", solver["refactor_points"])
     put("time_final_solve", int(solver["time_final_solve"]))
+    put("allow_unbalanced", int(solver["allow_unbalanced"]))
     put_adapt(args, scene["adapt"])
     put("adapt_warm_start", scene["adapt"]["warm_start"])
     put("vtu", int(scene["output"]["vtu"]))
@@ -209,6 +215,9 @@ def summary_lines(results):
         lines.append(f"adaptation: {len(steps['dofs'])} solves, DOFs {int(steps['dofs'][0])} -> "
                      f"{int(steps['dofs'][-1])}, eta {steps['eta'][0]:.4g} -> {steps['eta'][-1]:.4g}, "
                      f"disk area {steps['area_body1'][0]:.6f} -> {steps['area_body1'][-1]:.6f}")
+    balance = results.get("balance")
+    if balance and balance.get("unbalanced"):
+        lines.append(f"UNBALANCED (kept by solver.allow_unbalanced): {balance['message']}")
     return lines + [
         f"bodies: {results['dofs_body1']} + {results['dofs_body2']} DOFs on the cut spaces, "
         f"areas {results['areas']['body1']:.6g} and {results['areas']['body2']:.6g}",

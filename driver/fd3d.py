@@ -41,7 +41,8 @@ SCHEMA = {
     }, [0.0, 0.0, 0.0]),
     "rigid": {
         "mass_eps": Field("float", default=1e-7, check=at_least(0.0),
-                          doc="mass term eps int u1.v1 against the floating ball's rigid motions"),
+                          doc="mass term eps muStar int u1.v1 against the floating ball's rigid motions "
+                              "(relative to the shear modulus muStar, see method.gamma_scaling)"),
         "fix_xy_points": Field("vector", default=[0.0, 0.0, 0.0, 0.0, 0.0, 0.1], length=6,
                                doc="u1_x = u1_y = 0 at the nodes nearest to A and B (xA, yA, zA, xB, yB, zB)"),
         "fix_y_point": Field("vector", default=[0.1, 0.0, 0.0], length=3,
@@ -54,6 +55,9 @@ SCHEMA = {
         "stabilization": Field("str", default="auto", choices=STABILIZATIONS,
                                doc="auto: neighbour for theta > 0 (coercivity on cut elements), none otherwise"),
         "rho": Field("float", default=0.25, check=open_interval(0.0, 1.0 + 1e-12)),
+        "gamma_scaling": Field("str", default="shear", choices=("shear", "none"),
+                               doc="shear: gamma = gamma0 h_K / muStar, muStar = 2 mu1 mu2/(mu1 + mu2) (gamma0 "
+                                   "dimensionless); none: gamma = gamma0 h_K (gamma0 in 1/stress)"),
     },
     "solver": {
         "newton_tol": Field("float", default=1e-9, check=positive),
@@ -63,6 +67,9 @@ SCHEMA = {
         "active0": Field("float", default=0.1, check=at_least(0.0)),
         "predictor_steps": Field("int", default=4, check=at_least(0)),
         "refactor_points": Field("int", default=12, check=at_least(0)),
+        "allow_unbalanced": Field("bool", default=False,
+                                  doc="keep a run whose pins or mass term carry more than 1e-6 of the ball's "
+                                      "load (flagged in results.json 'balance'); refused (exit 3) otherwise"),
     },
     "adapt": dict(ADAPT_SCHEMA, switch=Field(
         "str", default="rqaAQ",
@@ -148,6 +155,8 @@ def freefem_args(scene, mesh_file=""):
     put("gamma0", meth["gamma0"])
     put("stabilization", meth["stabilization"])
     put("rho", meth["rho"])
+    put("gamma_scaling", meth["gamma_scaling"])
+    put("allow_unbalanced", int(solver["allow_unbalanced"]))
     put("newton_tol", solver["newton_tol"])
     put("newton_max", solver["newton_max"])
     if solver["contact_points"]:
@@ -182,6 +191,9 @@ def summary_lines(results):
         lines.append(f"adaptation (tetgen): {len(steps['dofs'])} solves, DOFs {int(steps['dofs'][0])} -> "
                      f"{int(steps['dofs'][-1])}, eta {steps['eta'][0]:.4g} -> {steps['eta'][-1]:.4g}, "
                      f"ball volume {steps['volume_body1'][0]:.6f} -> {steps['volume_body1'][-1]:.6f}")
+    balance = results.get("balance")
+    if balance and balance.get("unbalanced"):
+        lines.append(f"UNBALANCED (kept by solver.allow_unbalanced): {balance['message']}")
     return lines + [
         f"bodies: {results['dofs_body1']} + {results['dofs_body2']} DOFs on the cut spaces, "
         f"volumes {results['volumes']['body1']:.6g} and {results['volumes']['body2']:.6g}",

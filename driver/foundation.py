@@ -46,7 +46,10 @@ SCHEMA = {
     "method": {
         "degree": Field("int", default=2, choices=(1, 2)),
         "theta": Field("float", default=-1.0),
-        "gamma0": Field("float", default=None, check=positive),
+        "gamma0": Field("float", default=1.0, check=positive, doc="gamma = gamma0 h_K / E (gamma_scaling young)"),
+        "gamma_scaling": Field("str", default="young", choices=("young", "none"),
+                               doc="young: gamma = gamma0 h_K / E (gamma0 dimensionless); "
+                                   "none: gamma = gamma0 h_K (gamma0 in 1/stress)"),
     },
     "solver": {
         "newton_tol": Field("float", default=1e-9, check=positive),
@@ -81,8 +84,6 @@ def check(scene, source):
         mat["E"], mat["nu"] = E, nu
     else:
         raise SceneError(f"{source}: key 'material': needs E and nu (or lambda and mu)")
-    if scene["method"]["gamma0"] is None:
-        scene["method"]["gamma0"] = 1.0 / mat["E"]
     geo = scene["geometry"]
     if geo["kind"] == "box":
         if not (geo["xmax"] > geo["xmin"] and geo["ymax"] > geo["ymin"]):
@@ -137,6 +138,7 @@ def freefem_args(scene, mesh_file=""):
     put("fy", scene["loads"]["body_force"][1])
     put("theta", meth["theta"])
     put("gamma0", meth["gamma0"])
+    put("gamma_scaling", meth["gamma_scaling"])
     fp, fn = scene["contact"]["foundation_point"], scene["contact"]["foundation_normal"]
     put("foundation_px", fp[0])
     put("foundation_py", fp[1])
