@@ -310,6 +310,9 @@ def check_outcome(returncode, staging, name):
         raise FreeFemError(f"scene {name}: FreeFEM failed (exit {returncode}):\n  {freefem_message(log_text)}")
     results_path = staging / "results.json"
     if not results_path.is_file():
+        if (staging / "failure.json").is_file():   # the linear solver aborted FreeFEM with exit 0
+            failure = parse_json_file(staging / "failure.json")
+            raise NewtonError(f"scene {name}: {failure.get('message', 'solver failure')}")
         raise FreeFemError(f"scene {name}: FreeFEM exited normally but wrote no results.json")
     try:
         results = parse_json_file(results_path)

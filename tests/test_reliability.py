@@ -132,7 +132,7 @@ def test_a_failed_run_into_a_new_folder_writes_no_results(tmp_path):
 
 def test_a_second_writer_to_the_same_folder_is_refused(tmp_path):
     out = tmp_path / "R"
-    first = subprocess.Popen([sys.executable, "-m", "driver", "run", str(DISK), "--set", "mesh.nx=80",
+    first = subprocess.Popen([sys.executable, "-m", "driver", "run", str(DISK), "--set", "mesh.nx=120",
                               "--out", str(out)], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                              text=True)
     staging = tmp_path / ".R.staging"
@@ -143,7 +143,7 @@ def test_a_second_writer_to_the_same_folder_is_refused(tmp_path):
     _, first_err = first.communicate(timeout=300)
     assert first.returncode == 0, first_err
     assert second.returncode == 2 and "another run is writing" in second.stderr
-    assert json.loads((out / "results.json").read_text())["nx"] == 80
+    assert json.loads((out / "results.json").read_text())["nx"] == 120
 
 
 def test_relative_out_is_relative_to_the_working_folder(tmp_path):
