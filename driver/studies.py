@@ -40,7 +40,7 @@ def progress(i, n, text):
 def foundation_newton_table():
     """Newton iterations on the square scene at h = 1/32 for theta x degree (README table)."""
     case = REPO / "cases" / "square_slip_separation.toml"
-    grid = [(theta, degree, gamma0) for gamma0 in (None, 2e-7)
+    grid = [(theta, degree, gamma0) for gamma0 in (None, 0.2)
             for theta in (1, 0, -1) for degree in (1, 2)]
     rows = []
     for i, (theta, degree, gamma0) in enumerate(grid, 1):
@@ -50,7 +50,7 @@ def foundation_newton_table():
             overrides.append(f"method.gamma0={gamma0}")
         progress(i, len(grid), " ".join(overrides))
         row, results, _ = run_point(case, overrides)
-        row.update(theta=theta, degree=degree, gamma0=gamma0 if gamma0 else 1e-6)
+        row.update(theta=theta, degree=degree, gamma0=gamma0 if gamma0 else 1.0)
         if results is not None:
             box = results["contact"]["active_box"]
             row.update(active_length=results["contact"]["active_length"],
