@@ -3,6 +3,12 @@
 Body 1 is a disk, body 2 a slab {y < top} of the box, held either strongly on the
 box bottom or, with `bottom_line = [a, b]`, by Nitsche-Dirichlet on the line
 y = a + b x that cuts the mesh.
+
+Rules across keys (check below): the box is not empty; the disk lies inside the
+box and not below the slab top; the slab top lies inside the box; a bottom_line
+crosses the box between its bottom and the slab top, and then gamma_scaling is
+shear or none; both fix_x_points lie inside the disk; each body gives lambda and
+mu or E and nu (not both); adapt.steps > 0 needs output.estimators.
 """
 
 from driver.errors import SceneError
@@ -15,47 +21,61 @@ GAMMA_SCALINGS = ("shear", "none", "body1", "mean_compliance")
 def body_schema(shape_fields, force):
     """A body's fields: its shape, Lame (or E, nu) and a volume force of len(force) components."""
     return dict(shape_fields, **{
-        "lambda": Field("float", default=None),
-        "mu": Field("float", default=None, check=positive),
-        "E": Field("float", default=None, check=positive),
-        "nu": Field("float", default=None, check=open_interval(-1.0, 0.5)),
-        "body_force": Field("vector", default=force, length=len(force)),
+        "lambda": Field("float", default=None, unit="stress",
+                        doc="first Lame coefficient (give lambda and mu, or E and nu); lambda + mu > 0"),
+        "mu": Field("float", default=None, check=positive, unit="stress", doc="shear modulus (with lambda)"),
+        "E": Field("float", default=None, check=positive, unit="stress", doc="Young's modulus (with nu)"),
+        "nu": Field("float", default=None, check=open_interval(-1.0, 0.5), unit="1",
+                    doc="Poisson's ratio (with E; plane strain in 2D)"),
+        "body_force": Field("vector", default=force, length=len(force), unit="force/volume",
+                            doc="volume force on the body"),
     })
 
 
 SCHEMA = {
     "geometry": {
-        "xmin": Field("float", default=-0.5), "xmax": Field("float", default=0.5),
-        "ymin": Field("float", default=-0.5), "ymax": Field("float", default=0.5),
+        "xmin": Field("float", default=-0.5, unit="length", doc="background box, left side"),
+        "xmax": Field("float", default=0.5, unit="length", doc="background box, right side (> xmin)"),
+        "ymin": Field("float", default=-0.5, unit="length", doc="background box, bottom (the slab is clamped here)"),
+        "ymax": Field("float", default=0.5, unit="length", doc="background box, top (> ymin)"),
     },
     "mesh": {
         "nx": Field("int", default=80, check=at_least(2), doc="elements per side of the box (h = width/nx)"),
     },
     "body1": body_schema({
-        "shape": Field("str", default="disk", choices=("disk",)),
-        "centre": Field("vector", default=[0.0, 0.0], length=2),
-        "radius": Field("float", default=0.25, check=positive),
+        "shape": Field("str", default="disk", choices=("disk",), doc="body 1 is a disk, inside the box"),
+        "centre": Field("vector", default=[0.0, 0.0], length=2, unit="length", doc="centre of the disk"),
+        "radius": Field("float", default=0.25, check=positive, unit="length", doc="radius of the disk"),
     }, [0.0, -0.1]),
     "body2": body_schema({
-        "shape": Field("str", default="slab", choices=("slab",)),
-        "top": Field("float", default=-0.25),
-        "bottom_line": Field("vector", default=[], doc="[a, b]: Nitsche-Dirichlet u = 0 on y = a + b x"),
+        "shape": Field("str", default="slab", choices=("slab",), doc="body 2 is the part of the box below top"),
+        "top": Field("float", default=-0.25, unit="length",
+                     doc="height of the slab's top; not above the disk's lowest point"),
+        "bottom_line": Field("vector", default=[], unit="length, 1",
+                             doc="[a, b]: Nitsche-Dirichlet u = 0 on y = a + b x, crossing the box below top; "
+                                 "[] clamps the box bottom strongly"),
     }, [0.0, 0.0]),
     "rigid": {
-        "mass_eps": Field("float", default=1e-7, check=at_least(0.0),
+        "mass_eps": Field("float", default=1e-7, check=at_least(0.0), unit="1",
                           doc="mass term eps muStar int u1.v1 against the floating disk's rigid motions "
                               "(relative to the shear modulus muStar, see method.gamma_scaling)"),
-        "fix_x_points": Field("vector", default=[0.0, 0.0, 0.0, 0.1], length=4,
-                              doc="u1_x = 0 at the nodes nearest to these two points (x1, y1, x2, y2)"),
+        "fix_x_points": Field("vector", default=[0.0, 0.0, 0.0, 0.1], length=4, unit="length",
+                              doc="u1_x = 0 at the nodes nearest to these two points (x1, y1, x2, y2), inside the disk"),
     },
     "method": {
-        "degree": Field("int", default=2, choices=(1, 2)),
-        "theta": Field("float", default=-1.0),
-        "gamma0": Field("float", default=1.0 / 200.0, check=positive),
+        "degree": Field("int", default=2, choices=(1, 2), doc="finite element degree (P1 or P2)"),
+        "theta": Field("float", default=-1.0, unit="1",
+                       doc="Nitsche variant: 1 symmetric, 0 non-symmetric, -1 skew-symmetric (any real)"),
+        "gamma0": Field("float", default=1.0 / 200.0, check=positive, unit="1",
+                        doc="Nitsche parameter, gamma = gamma0 h_K / muStar (1/stress with gamma_scaling none)"),
         "stabilization": Field("str", default="auto", choices=STABILIZATIONS,
-                               doc="auto: ghost for theta > 0 (coercivity on cut elements), none otherwise"),
-        "rho": Field("float", default=0.25, check=open_interval(0.0, 1.0 + 1e-12)),
-        "ghost_gamma": Field("float", default=1e-2, check=positive),
+                               doc="auto: ghost for theta > 0 (coercivity on cut elements), none otherwise; "
+                                   "neighbour: stress of the best-cut neighbour (R_rho); ghost: ghost penalty"),
+        "rho": Field("float", default=0.25, check=open_interval(0.0, 1.0 + 1e-12, "(0, 1]"), unit="1",
+                     doc="neighbour stabilization: cut ratio |K cap Omega_i|/|K| below which an element "
+                         "borrows its neighbour's stress"),
+        "ghost_gamma": Field("float", default=1e-2, check=positive, unit="1",
+                             doc="ghost penalty weight, times lambda + 2 mu of each body"),
         "gamma_scaling": Field("str", default="shear", choices=GAMMA_SCALINGS,
                                doc="shear: gamma = gamma0 h_K / muStar, muStar = 2 mu1 mu2/(mu1 + mu2) (gamma0 "
                                    "dimensionless); none: gamma = gamma0 h_K (gamma0 in 1/stress); body1: "
@@ -63,12 +83,15 @@ SCHEMA = {
                                    "Nitsche terms); mean_compliance: gamma = gamma0 h_K (1/E1 + 1/E2)/2"),
     },
     "solver": {
-        "newton_tol": Field("float", default=1e-9, check=positive),
-        "newton_max": Field("int", default=30, check=at_least(1)),
+        "newton_tol": Field("float", default=1e-9, check=positive, unit="1",
+                            doc="Newton stops when the relative nonlinear residual is below this and the "
+                                "active set is stable"),
+        "newton_max": Field("int", default=30, check=at_least(1), doc="Newton iteration limit (then exit 3)"),
         "contact_points": Field("int", default=3, choices=(1, 2, 3, 4), doc="Gauss points per cut segment"),
-        "active0": Field("float", default=0.1, check=at_least(0.0),
+        "active0": Field("float", default=0.1, check=at_least(0.0), unit="1",
                          doc="first active set: gap <= active0 * h (then a secant predictor)"),
-        "predictor_steps": Field("int", default=4, check=at_least(0)),
+        "predictor_steps": Field("int", default=4, check=at_least(0),
+                                 doc="Newton steps of the secant predictor on the active measure"),
         "refactor_points": Field("int", default=12, check=at_least(0),
                                  doc="re-use the factorization (GMRES) when fewer points changed"),
         "time_final_solve": Field("bool", default=False,
@@ -81,8 +104,8 @@ SCHEMA = {
         "int", default=1, choices=(0, 1, 2),
         doc="Newton start after adaptation: 0 default, 1 previous active measure, 2 previous solution")),
     "output": {
-        "vtu": Field("bool", default=True),
-        "pressure_csv": Field("bool", default=True),
+        "vtu": Field("bool", default=True, doc="write fields.vtu"),
+        "pressure_csv": Field("bool", default=True, doc="write contact_pressure.csv"),
         "estimators": Field("bool", default=True,
                             doc="residual estimators eta_1..eta_5 (needed by adapt.steps > 0)"),
         "save_solution": Field("bool", default=False,

@@ -6,6 +6,12 @@ u1_x and u1_y at two points A, B (on a vertical line through the ball:
 translations in x, y and rotations about x, y) and u1_y at a third point C (off
 that line in x: rotation about z), by a penalty on the values at the points, plus
 a mass term eps int u1.v1 (z translation is carried by the contact).
+
+Rules across keys (check below): the box is not empty; the ball lies inside the
+box and not below the slab top; the slab top lies inside the box; A, B and C lie
+inside the ball, A and B on one vertical line at different heights, C off it in
+x; each body gives lambda and mu or E and nu (not both); adapt.steps > 0 needs
+output.estimators; adapt.switch starts with r, holds a and no p.
 """
 
 from driver.errors import SceneError
@@ -17,64 +23,78 @@ STABILIZATIONS = ("auto", "none", "neighbour")
 
 SCHEMA = {
     "geometry": {
-        "xmin": Field("float", default=-0.5), "xmax": Field("float", default=0.5),
-        "ymin": Field("float", default=-0.5), "ymax": Field("float", default=0.5),
-        "zmin": Field("float", default=-0.5), "zmax": Field("float", default=0.5),
+        "xmin": Field("float", default=-0.5, unit="length", doc="background box, x from"),
+        "xmax": Field("float", default=0.5, unit="length", doc="background box, x to (> xmin)"),
+        "ymin": Field("float", default=-0.5, unit="length", doc="background box, y from"),
+        "ymax": Field("float", default=0.5, unit="length", doc="background box, y to (> ymin)"),
+        "zmin": Field("float", default=-0.5, unit="length", doc="background box, bottom (the slab is clamped here)"),
+        "zmax": Field("float", default=0.5, unit="length", doc="background box, top (> zmin)"),
     },
     "mesh": {
         "nx": Field("int", default=10, check=at_least(2), doc="cells per side of the box (h = width/nx)"),
-        "grade_h": Field("float", default=0.0, check=at_least(0.0),
+        "grade_h": Field("float", default=0.0, check=at_least(0.0), unit="length",
                          doc="0: uniform; else one tetgen pass refines toward the contact point to this edge size"),
-        "grade_radius": Field("float", default=0.1, check=at_least(0.0),
+        "grade_radius": Field("float", default=0.1, check=at_least(0.0), unit="length",
                               doc="edge size grade_h within this distance of the contact point"),
-        "grade_slope": Field("float", default=0.25, check=positive,
+        "grade_slope": Field("float", default=0.25, check=positive, unit="1",
                              doc="growth of the edge size with the distance beyond grade_radius"),
     },
     "body1": body_schema({
-        "shape": Field("str", default="ball", choices=("ball",)),
-        "centre": Field("vector", default=[0.0, 0.0, 0.0], length=3),
-        "radius": Field("float", default=0.25, check=positive),
+        "shape": Field("str", default="ball", choices=("ball",), doc="body 1 is a ball, inside the box"),
+        "centre": Field("vector", default=[0.0, 0.0, 0.0], length=3, unit="length", doc="centre of the ball"),
+        "radius": Field("float", default=0.25, check=positive, unit="length", doc="radius of the ball"),
     }, [0.0, 0.0, -0.1]),
     "body2": body_schema({
-        "shape": Field("str", default="slab", choices=("slab",)),
-        "top": Field("float", default=-0.25),
+        "shape": Field("str", default="slab", choices=("slab",), doc="body 2 is the part of the box below top"),
+        "top": Field("float", default=-0.25, unit="length",
+                     doc="height of the slab's top; not above the ball's lowest point"),
     }, [0.0, 0.0, 0.0]),
     "rigid": {
-        "mass_eps": Field("float", default=1e-7, check=at_least(0.0),
+        "mass_eps": Field("float", default=1e-7, check=at_least(0.0), unit="1",
                           doc="mass term eps muStar int u1.v1 against the floating ball's rigid motions "
                               "(relative to the shear modulus muStar, see method.gamma_scaling)"),
-        "fix_xy_points": Field("vector", default=[0.0, 0.0, 0.0, 0.0, 0.0, 0.1], length=6,
-                               doc="u1_x = u1_y = 0 at the nodes nearest to A and B (xA, yA, zA, xB, yB, zB)"),
-        "fix_y_point": Field("vector", default=[0.1, 0.0, 0.0], length=3,
-                             doc="u1_y = 0 at the node nearest to C (rotation about z)"),
+        "fix_xy_points": Field("vector", default=[0.0, 0.0, 0.0, 0.0, 0.0, 0.1], length=6, unit="length",
+                               doc="u1_x = u1_y = 0 at A and B (xA, yA, zA, xB, yB, zB), inside the ball, "
+                                   "on one vertical line"),
+        "fix_y_point": Field("vector", default=[0.1, 0.0, 0.0], length=3, unit="length",
+                             doc="u1_y = 0 at C (rotation about z), inside the ball, off the line AB in x"),
     },
     "method": {
-        "degree": Field("int", default=1, choices=(1, 2)),
-        "theta": Field("float", default=-1.0),
-        "gamma0": Field("float", default=1.0 / 200.0, check=positive),
+        "degree": Field("int", default=1, choices=(1, 2), doc="finite element degree (P1 or P2)"),
+        "theta": Field("float", default=-1.0, unit="1",
+                       doc="Nitsche variant: 1 symmetric, 0 non-symmetric, -1 skew-symmetric (any real)"),
+        "gamma0": Field("float", default=1.0 / 200.0, check=positive, unit="1",
+                        doc="Nitsche parameter, gamma = gamma0 h_K / muStar (1/stress with gamma_scaling none)"),
         "stabilization": Field("str", default="auto", choices=STABILIZATIONS,
                                doc="auto: neighbour for theta > 0 (coercivity on cut elements), none otherwise"),
-        "rho": Field("float", default=0.25, check=open_interval(0.0, 1.0 + 1e-12)),
+        "rho": Field("float", default=0.25, check=open_interval(0.0, 1.0 + 1e-12, "(0, 1]"), unit="1",
+                     doc="neighbour stabilization: cut ratio below which an element borrows its "
+                         "neighbour's stress"),
         "gamma_scaling": Field("str", default="shear", choices=("shear", "none"),
                                doc="shear: gamma = gamma0 h_K / muStar, muStar = 2 mu1 mu2/(mu1 + mu2) (gamma0 "
                                    "dimensionless); none: gamma = gamma0 h_K (gamma0 in 1/stress)"),
     },
     "solver": {
-        "newton_tol": Field("float", default=1e-9, check=positive),
-        "newton_max": Field("int", default=30, check=at_least(1)),
+        "newton_tol": Field("float", default=1e-9, check=positive, unit="1",
+                            doc="Newton stops when the relative nonlinear residual is below this and the "
+                                "active set is stable"),
+        "newton_max": Field("int", default=30, check=at_least(1), doc="Newton iteration limit (then exit 3)"),
         "contact_points": Field("int", default=0, choices=(0, 1, 3, 6),
                                 doc="points per interface triangle (0: 3 for P1, 6 for P2)"),
-        "active0": Field("float", default=0.1, check=at_least(0.0)),
-        "predictor_steps": Field("int", default=4, check=at_least(0)),
-        "refactor_points": Field("int", default=12, check=at_least(0)),
+        "active0": Field("float", default=0.1, check=at_least(0.0), unit="1",
+                         doc="first active set: gap <= active0 * h (then a secant predictor)"),
+        "predictor_steps": Field("int", default=4, check=at_least(0),
+                                 doc="Newton steps of the secant predictor on the active measure"),
+        "refactor_points": Field("int", default=12, check=at_least(0),
+                                 doc="re-use the factorization (GMRES) when fewer points changed"),
         "allow_unbalanced": Field("bool", default=False,
                                   doc="keep a run whose pins or mass term carry more than 1e-6 of the ball's "
                                       "load (flagged in results.json 'balance'); refused (exit 3) otherwise"),
     },
     "adapt": dict(ADAPT_SCHEMA, switch=Field(
         "str", default="rqaAQ",
-        doc="tetgen switches of tetgreconstruction (r refine, q quality, a volume bounds); "
-            "steps refine by tetgen, max_coarsen is unused (tetgen never coarsens)")),
+        doc="tetgen switches of tetgreconstruction (r refine, q quality, a volume bounds); must start with r, "
+            "hold a and no p; steps refine by tetgen, max_coarsen is unused (tetgen never coarsens)")),
     "output": {
         "vtu": Field("bool", default=True, doc="body VTUs and estimators.vtu (P0 eta fields on the background mesh)"),
         "estimators": Field("bool", default=True, doc="residual estimators eta1..eta5 (needed by adapt.steps > 0)"),

@@ -1,4 +1,14 @@
-"""Scenes for freefem/contact_foundation_2d.edp: one body, rigid foundation, fitted mesh."""
+"""Scenes for freefem/contact_foundation_2d.edp: one body, rigid foundation, fitted mesh.
+
+The body is the box (geometry.kind = box, sides labelled bottom, right, top,
+left) or a gmsh mesh of a .geo file (sides labelled by physical id); each side
+named in a [[boundary]] table gets a displacement, a traction or contact with the
+rigid foundation {(x - foundation_point).foundation_normal <= 0}; the others are
+free. Rules across keys (check below): the material gives E and nu or lambda and
+mu (not both); the box is not empty; kind = gmsh needs an existing geo file;
+reference.folder holds a saved solution (mesh.msh, u.txt); foundation_normal is
+not zero; boundary labels exist on the mesh.
+"""
 
 from pathlib import Path
 
@@ -11,57 +21,71 @@ COMPONENT_BITS = {"x": 1, "y": 2, "xy": 3}
 
 SCHEMA = {
     "geometry": {
-        "kind": Field("str", default="box", choices=("box", "gmsh")),
-        "xmin": Field("float", default=0.0), "xmax": Field("float", default=1.0),
-        "ymin": Field("float", default=0.0), "ymax": Field("float", default=1.0),
+        "kind": Field("str", default="box", choices=("box", "gmsh"),
+                      doc="box: FreeFEM square mesh of the box; gmsh: mesh of geometry.geo"),
+        "xmin": Field("float", default=0.0, unit="length", doc="box, left side (kind = box)"),
+        "xmax": Field("float", default=1.0, unit="length", doc="box, right side (> xmin)"),
+        "ymin": Field("float", default=0.0, unit="length", doc="box, bottom"),
+        "ymax": Field("float", default=1.0, unit="length", doc="box, top (> ymin)"),
         "geo": Field("str", default="", doc="gmsh .geo file (kind = gmsh), relative to the scene"),
     },
     "mesh": {
         "nx": Field("int", default=32, check=positive, doc="elements per unit length (h = 1/nx)"),
     },
     "material": {
-        "E": Field("float", default=None, check=positive),
-        "nu": Field("float", default=None, check=open_interval(-1.0, 0.5)),
-        "lambda": Field("float", default=None),
-        "mu": Field("float", default=None, check=positive),
-        "plane": Field("str", default="strain", choices=("strain", "stress")),
+        "E": Field("float", default=None, check=positive, unit="stress",
+                   doc="Young's modulus (give E and nu, or lambda and mu)"),
+        "nu": Field("float", default=None, check=open_interval(-1.0, 0.5), unit="1", doc="Poisson's ratio (with E)"),
+        "lambda": Field("float", default=None, unit="stress",
+                        doc="first Lame coefficient (with mu; the implied nu must lie in (-1, 0.5))"),
+        "mu": Field("float", default=None, check=positive, unit="stress", doc="shear modulus (with lambda)"),
+        "plane": Field("str", default="strain", choices=("strain", "stress"), doc="plane strain or plane stress"),
     },
     "loads": {
-        "body_force": Field("vector", default=[0.0, 0.0], length=2),
+        "body_force": Field("vector", default=[0.0, 0.0], length=2, unit="force/volume", doc="volume force"),
     },
     "boundary": TableList({
         "label": Field("str", doc="bottom/right/top/left for boxes, a physical id for gmsh"),
-        "type": Field("str", choices=("dirichlet", "traction", "contact", "free")),
-        "value": Field("vector", default=[0.0, 0.0], length=2),
-        "components": Field("str", default="xy", choices=tuple(COMPONENT_BITS)),
+        "type": Field("str", choices=("dirichlet", "traction", "contact", "free"),
+                      doc="condition on that boundary: displacement, traction, contact with the foundation, none"),
+        "value": Field("vector", default=[0.0, 0.0], length=2, unit="length or force/area",
+                       doc="imposed displacement (dirichlet) or traction (traction)"),
+        "components": Field("str", default="xy", choices=tuple(COMPONENT_BITS),
+                            doc="displacement components a dirichlet condition fixes"),
     }),
     "point_constraint": TableList({
-        "point": Field("vector", length=2),
-        "components": Field("str", default="x", choices=tuple(COMPONENT_BITS)),
+        "point": Field("vector", length=2, unit="length", doc="u = 0 at the mesh vertex nearest to this point"),
+        "components": Field("str", default="x", choices=tuple(COMPONENT_BITS), doc="components fixed there"),
     }),
     "contact": {
-        "foundation_point": Field("vector", default=[0.0, 0.0], length=2),
-        "foundation_normal": Field("vector", default=[0.0, 1.0], length=2),
+        "foundation_point": Field("vector", default=[0.0, 0.0], length=2, unit="length",
+                                  doc="a point of the rigid foundation's boundary line"),
+        "foundation_normal": Field("vector", default=[0.0, 1.0], length=2, unit="1",
+                                   doc="normal of that line pointing out of the foundation (non-zero; gap = "
+                                       "(x - point).normal)"),
     },
     "method": {
-        "degree": Field("int", default=2, choices=(1, 2)),
-        "theta": Field("float", default=-1.0),
-        "gamma0": Field("float", default=1.0, check=positive, doc="gamma = gamma0 h_K / E (gamma_scaling young)"),
+        "degree": Field("int", default=2, choices=(1, 2), doc="finite element degree (P1 or P2)"),
+        "theta": Field("float", default=-1.0, unit="1",
+                       doc="Nitsche variant: 1 symmetric, 0 non-symmetric, -1 skew-symmetric (any real)"),
+        "gamma0": Field("float", default=1.0, check=positive, unit="1",
+                        doc="gamma = gamma0 h_K / E (gamma_scaling young)"),
         "gamma_scaling": Field("str", default="young", choices=("young", "none"),
                                doc="young: gamma = gamma0 h_K / E (gamma0 dimensionless); "
                                    "none: gamma = gamma0 h_K (gamma0 in 1/stress)"),
     },
     "solver": {
-        "newton_tol": Field("float", default=1e-9, check=positive),
-        "newton_max": Field("int", default=30, check=at_least(1)),
+        "newton_tol": Field("float", default=1e-9, check=positive, unit="1",
+                            doc="Newton stops when the relative residual is below this and the active set is stable"),
+        "newton_max": Field("int", default=30, check=at_least(1), doc="Newton iteration limit (then exit 3)"),
     },
     "adapt": ADAPT_SCHEMA,
     "reference": {
         "folder": Field("str", default="", doc="a run saved with output.save_solution (P2): errors against it"),
     },
     "output": {
-        "vtu": Field("bool", default=True),
-        "pressure_csv": Field("bool", default=True),
+        "vtu": Field("bool", default=True, doc="write fields.vtu"),
+        "pressure_csv": Field("bool", default=True, doc="write contact_pressure.csv (when a boundary has contact)"),
         "save_solution": Field("bool", default=False, doc="write mesh.msh and u.txt (a reference)"),
     },
 }

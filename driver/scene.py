@@ -10,11 +10,12 @@ import tomllib
 from pathlib import Path
 
 from driver.errors import SceneError
-from driver.schema import Field, validate
+from driver.schema import Field, described, validate
 
 SAFE_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}")
 
 
+@described("1-100 letters, digits, _ - ., not starting with . or -")
 def safe_name(value):
     """A scene name becomes part of a folder name: no path separators, quotes or spaces."""
     if not SAFE_NAME.fullmatch(value):
@@ -24,8 +25,9 @@ def safe_name(value):
 
 SCENE_HEADER = {
     "name": Field("str", check=safe_name, doc="scene name, used for run folders"),
-    "script": Field("str", doc="FreeFEM top-level script (without .edp)"),
-    "description": Field("str", default=""),
+    "script": Field("str", doc="FreeFEM top-level script (without .edp) that solves the scene: fd_contact_2d, "
+                               "fd_contact_3d or contact_foundation_2d"),
+    "description": Field("str", default="", doc="free text, kept in scene.json"),
 }
 
 

@@ -13,13 +13,14 @@ REQUIRED = object()
 class Field:
     """One scalar or vector entry of a scene table."""
 
-    def __init__(self, kind, default=REQUIRED, check=None, choices=None, length=None, doc=""):
+    def __init__(self, kind, default=REQUIRED, check=None, choices=None, length=None, doc="", unit=""):
         self.kind = kind            # "float", "int", "str", "bool", "vector"
         self.default = default
-        self.check = check          # callable(value) -> error text or None
+        self.check = check          # callable(value) -> error text or None; its .description reads as a range
         self.choices = choices
         self.length = length        # for vectors
-        self.doc = doc
+        self.doc = doc              # one line for the scene reference (docs/scenes.md)
+        self.unit = unit            # dimension in a consistent unit system ("1": dimensionless)
 
     def coerce(self, value, where):
         kind = self.kind
@@ -71,16 +72,27 @@ def type_name(value):
             list: "list", dict: "table"}.get(type(value), type(value).__name__)
 
 
+def described(description):
+    """Attach the readable range that the scene reference prints for a check."""
+    def attach(check):
+        check.description = description
+        return check
+    return attach
+
+
+@described("> 0")
 def positive(value):
     return None if value > 0 else "must be > 0"
 
 
 def at_least(bound):
-    return lambda value: None if value >= bound else f"must be >= {bound}"
+    return described(f">= {bound:g}")(lambda value: None if value >= bound else f"must be >= {bound}")
 
 
-def open_interval(lo, hi):
-    return lambda value: None if lo < value < hi else f"must lie in ({lo}, {hi})"
+def open_interval(lo, hi, description=None):
+    """lo < value < hi; description overrides the printed range (e.g. "(0, 1]" for a bound padded by round-off)."""
+    return described(description or f"({lo:g}, {hi:g})")(
+        lambda value: None if lo < value < hi else f"must lie in ({lo}, {hi})")
 
 
 def validate(data, schema, source, prefix=""):
@@ -120,13 +132,17 @@ class FreeFemFlags(list):
 
 # Estimator-driven adaptation, the same keys for every script that adapts.
 ADAPT_SCHEMA = {
-    "steps": Field("int", default=0, check=at_least(0), doc="adaptmesh steps after the first solve"),
-    "growth": Field("float", default=2.0, check=positive, doc="wanted element-count growth per step"),
+    "steps": Field("int", default=0, check=at_least(0),
+                   doc="mesh adaptations after the first solve, each followed by a new solve (0: none)"),
+    "growth": Field("float", default=2.0, check=positive, unit="1", doc="wanted element-count growth per step"),
     "max_dofs": Field("int", default=200000, check=positive,
                       doc="DOF budget: no adaptation step whose mesh would exceed it (growth x DOFs)"),
-    "eta_target": Field("float", default=0.0, check=at_least(0.0), doc="stop once eta <= this"),
-    "max_refine": Field("float", default=4.0, check=at_least(1.0)),
-    "max_coarsen": Field("float", default=2.0, check=at_least(1.0)),
+    "eta_target": Field("float", default=0.0, check=at_least(0.0), unit="as eta",
+                        doc="stop once the estimator eta <= this (0: run every step)"),
+    "max_refine": Field("float", default=4.0, check=at_least(1.0), unit="1",
+                        doc="an element's size shrinks at most by this factor per step"),
+    "max_coarsen": Field("float", default=2.0, check=at_least(1.0), unit="1",
+                         doc="an element's size grows at most by this factor per step"),
 }
 
 
