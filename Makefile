@@ -6,7 +6,7 @@ CASE ?= cases/disk_on_slab.toml
 SET ?=
 SUDO := $(shell [ "$$(id -u)" -eq 0 ] || echo sudo)
 # libopenblas0-serial: MUMPS links the system BLAS; the reference BLAS is slower
-# (the timings in README were measured with OpenBLAS serial).
+# (the timings in docs/benchmarks.md were measured with OpenBLAS serial).
 DEBIAN_PACKAGES := freefem++ libfreefem++ gmsh libopenblas0-serial
 OPENBLAS := /usr/lib/x86_64-linux-gnu/openblas-serial/libblas.so.3
 export FF_LOADPATH := /usr/lib/freefem++
@@ -41,7 +41,8 @@ test: setup
 clean:
 	rm -rf runs .pytest_cache
 
-# Tables and figures quoted in the README (one target per study).
+# Tables and figures of the study pages in docs/ (one target per study; each ends
+# by refilling the generated tables of README.md and docs/*.md: make readme).
 .PHONY: foundation-study
 foundation-study: setup
 	$(PYTHON) -m driver study foundation-newton square-pressure
@@ -69,7 +70,7 @@ readme:
 
 # Speed against error on the disk on slab (timings: ratios and medians belong here,
 # never in tests): results/bench*.csv (Newton grid first: not timed), plots/speed_vs_error.png.
-# Hard cases (issue 5): the scenes of cases/hard/ (results/hard_cases.csv), the
+# Hard cases: the scenes of cases/hard/ (results/hard_cases.csv), the
 # material scaling of gamma (results/hard_gamma_scaling.csv), the conditioning of the
 # Newton matrix against the cut (results/hard_conditioning.csv, plots/conditioning.png).
 # The sliver errors use a P2 NX = 160 reference (computed once into runs/reference/).
@@ -93,7 +94,7 @@ fd3d-study: setup
 	$(PYTHON) -m driver study fd3d-convergence ball-on-slab-figure fd3d-adaptive
 	$(PYTHON) -m driver readme
 
-# Parameter sweeps on Dask (README "Parameter sweeps (Dask)"): one FreeFEM run per point,
+# Parameter sweeps on Dask (docs/sweeps.md): one FreeFEM run per point,
 # one row per point in results/sweep_NAME.csv, resumable (runs/sweeps/NAME/rows/).
 # make sweep [SWEEP=cases/sweeps/NAME.toml] [WORKERS=2] [SCHEDULER=tcp://HOST:8786]
 SWEEP ?= cases/sweeps/smoke.toml

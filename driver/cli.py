@@ -94,7 +94,8 @@ def build_parser():
     from driver.sweep import add_parser as add_sweep_parsers
 
     add_sweep_parsers(sub)
-    readme = sub.add_parser("readme", help="refill the README's generated tables from results/*.csv")
+    readme = sub.add_parser("readme", help="refill the generated tables of README.md and docs/*.md from "
+                                           "results/*.csv and write docs/scenes.md from the schemas")
     readme.set_defaults(func=cmd_readme)
     return parser
 

@@ -247,7 +247,7 @@ def theta1_stabilization():
 
 
 def check_bars(table):
-    """The issue's bars, evaluated on a convergence table (used by the tests and the README)."""
+    """The convergence-rate bars, evaluated on a convergence table (used by the tests and docs/convergence-2d.md)."""
     rates = rates_of(table, ["degree", "theta"])
     failures = []
     for _, r in rates.iterrows():

@@ -203,7 +203,7 @@ def convergence():
 
 
 def check_bars(table, rates):
-    """Report (never hide) what misses the issue's bars: runs that did not converge
+    """Report (never hide) what misses the convergence bars: runs that did not converge
     (kept as rows of the table) and P1 H1 rates below 0.85."""
     failed = table[~table.status.isin(["converged", "reference"])]
     if len(failed):

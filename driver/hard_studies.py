@@ -1,10 +1,10 @@
-"""Hard cases of the fictitious-domain contact (issue 5): the scenes of cases/hard/,
+"""Hard cases of the fictitious-domain contact: the scenes of cases/hard/,
 the material scaling of gamma and the conditioning of the Newton matrix against
 the smallest cut ratio.
 
 hard-cases        -> results/hard_cases.csv, results/hard_gamma_scaling.csv
 hard-conditioning -> results/hard_conditioning.csv, plots/conditioning.png
-(make hard-study runs both and refills the README tables).
+(make hard-study runs both and refills the tables of docs/hard-cases.md).
 """
 
 import numpy as np

@@ -38,7 +38,7 @@ def progress(i, n, text):
 
 
 def foundation_newton_table():
-    """Newton iterations on the square scene at h = 1/32 for theta x degree (README table)."""
+    """Newton iterations on the square scene at h = 1/32 for theta x degree (docs/foundation.md)."""
     case = REPO / "cases" / "square_slip_separation.toml"
     grid = [(theta, degree, gamma0) for gamma0 in (None, 0.2)
             for theta in (1, 0, -1) for degree in (1, 2)]
@@ -95,7 +95,7 @@ def square_pressure_plot():
 
 
 def markdown_table(frame, digits=4):
-    """A pipe table for the README (numbers to `digits` significant figures)."""
+    """A Markdown pipe table for the docs (numbers to `digits` significant figures)."""
     def cell(value):
         if isinstance(value, float):
             return "" if value != value else f"{value:.{digits}g}"

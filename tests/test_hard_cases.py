@@ -1,4 +1,4 @@
-"""Hard cases (issue 5): one test per scene of cases/hard/, each asserting a bounded
+"""Hard cases: one test per scene of cases/hard/, each asserting a bounded
 result or a clear error, and the Newton-matrix export used by the conditioning study.
 
 Sliver cuts: relative H1 errors (both bodies) against a P2 NX = 80 reference computed
