@@ -1,4 +1,4 @@
-// Slab (body 2 of the disk-on-slab scene, DESIGN.md 4) for the body-fitted
+// Slab (body 2 of the disk-on-slab scene, cases/disk_on_slab.toml) for the body-fitted
 // cross-check (freefem/fitted_two_body_2d.edp). Parameters (gmsh -setnumber):
 // lc mesh size, box [x0, x1] x [y0, y1]. Physical curve ids follow FreeFEM's
 // square(): 1 bottom (clamped), 2 right, 3 top (contact side), 4 left; surface 1.
