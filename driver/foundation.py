@@ -54,7 +54,7 @@ SCHEMA = {
                             doc="displacement components a dirichlet condition fixes"),
     }),
     "point_constraint": TableList({
-        "point": Field("vector", length=2, unit="length", doc="u = 0 at the mesh vertex nearest to this point"),
+        "point": Field("vector", length=2, unit="length", doc="u = 0 at the node lying at this point (to 1e-9)"),
         "components": Field("str", default="x", choices=tuple(COMPONENT_BITS), doc="components fixed there"),
     }),
     "contact": {
