@@ -45,3 +45,17 @@ def test_every_table_has_one_marker():
     for name in readme.TABLES:
         assert text.count(f"<!-- table:{name} -->") == 1, f"table {name}: expected exactly one marker"
         assert text.count(f"<!-- end:{name} -->") == 1, f"table {name}: expected exactly one end marker"
+
+
+OUTSIDE = re.compile(r"DESIGN\.md|\.\./shared|\bissues? #?\d+|/issues/\d+")
+
+
+def test_nothing_points_outside_the_repository():
+    """Documentation and code name only what is in the repository: no external design notes or issue numbers."""
+    paths = [REPO / "README.md", REPO / "Makefile"]
+    for folder, pattern in (("docs", "*.md"), ("driver", "*.py"), ("tests", "*.py"), ("cases", "*")):
+        paths += [p for p in (REPO / folder).rglob(pattern) if p.is_file() and "__pycache__" not in p.parts]
+    for path in paths:
+        for number, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
+            match = OUTSIDE.search(line)
+            assert not match, f"{path.relative_to(REPO)}:{number}: {match.group(0)!r} points outside the repository"
