@@ -1,7 +1,7 @@
 """Studies of the 2D fictitious-domain contact (disk on slab): convergence against a
 fine reference, gamma0 influence, stabilization on sliver cuts.
 
-Errors come from freefem/fd_error_2d.edp (reference cut integration, coarse field
+Errors come from freefem/tools/fd_error_2d.edp (reference cut integration, coarse field
 extended where it is undefined); this module only runs, tabulates and plots.
 """
 

@@ -1,6 +1,6 @@
 """Study of the 3D residual estimator under uniform and tetgen-adaptive refinement
 (ball on slab, P1): eta against DOFs, uniform nx ladder vs an adaptive loop from
-the coarsest nx (freefem/lib/adaptation_fd3d.idp). This module only runs,
+the coarsest nx (freefem/lib/fd3d/adapt.idp). This module only runs,
 tabulates and plots.
 """
 

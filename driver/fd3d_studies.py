@@ -2,7 +2,7 @@
 P2 reference graded toward the contact point, cost (wall time, peak memory) against
 DOFs, the centre-cut figure.
 
-Errors come from freefem/fd_error_3d.edp (reference cut integration; the uniform
+Errors come from freefem/tools/fd_error_3d.edp (reference cut integration; the uniform
 ladder meshes are not nested in the graded reference, so the coarse fields are
 evaluated at the reference quadrature points). This module only runs, tabulates
 and plots.
@@ -22,7 +22,7 @@ from driver.studies import PLOTS_DIR, RESULTS_DIR, cached_reference, loglog_slop
 BALL = REPO / "cases" / "ball_on_slab.toml"
 # The reference: P2, theta = -1, on cube(nx) refined by tetgen toward the contact
 # point (edge about grade_h within grade_radius of it, growing by grade_slope per
-# unit distance beyond; lib/grading3d.idp). The solution is smooth except near the
+# unit distance beyond; freefem/lib/fd3d/grading.idp). The solution is smooth except near the
 # contact zone (radius about 0.1), which a uniform P2 mesh that fits in memory
 # (h = 1/30, 248k DOFs, 9.8 GiB) resolves with only about 3 cells per radius.
 REFERENCE_NX = int(os.environ.get("FD3D_REFERENCE_NX", "15"))

@@ -24,13 +24,14 @@ from driver.resources import check_fits
 
 REPO = Path(__file__).resolve().parent.parent
 FREEFEM_DIR = REPO / "freefem"
+TOOLS_DIR = FREEFEM_DIR / "tools"     # error measures and cross-checks (run_freefem_tool)
 PLUGIN_DIR = "/usr/lib/freefem++"
 
 
 def freefem_env():
     env = dict(os.environ)
     env["FF_LOADPATH"] = PLUGIN_DIR   # Debian's binary looks in the wrong folder
-    # One BLAS thread: FreeFEM phases are timed with CPU clock() (see results.idp).
+    # One BLAS thread: FreeFEM phases are timed with CPU clock() (see freefem/lib/core/results.idp).
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         env[var] = "1"
     return env
@@ -324,10 +325,10 @@ def check_outcome(returncode, staging, name):
 
 
 def run_freefem_tool(script, args, output, what):
-    """Run a post-processing script (errors, comparisons) that writes one JSON file."""
+    """Run a tool of freefem/tools/ (errors, comparisons) that writes one JSON file."""
     output = Path(output)
     output.unlink(missing_ok=True)
-    command = [freefem_binary(), "-nw", "-v", "0", str(FREEFEM_DIR / script)] + list(args)
+    command = [freefem_binary(), "-nw", "-v", "0", str(TOOLS_DIR / script)] + list(args)
     proc = subprocess.run(command, cwd=REPO, env=freefem_env(), capture_output=True, text=True)
     if proc.returncode != 0 or not output.is_file():
         raise FreeFemError(f"{what} failed (exit {proc.returncode}):\n  "

@@ -3,7 +3,7 @@
 MUMPS orders systems above a few thousand unknowns with Scotch, whose threaded
 ordering varied from run to run; the solutions then differed in the last digits and
 the estimator-driven adaptmesh turned that into different meshes.
-freefem/lib/sparse_solver.idp keeps Scotch on one thread."""
+freefem/lib/core/sparse_solver.idp keeps Scotch on one thread."""
 
 import math
 import re
@@ -61,11 +61,17 @@ def test_adaptive_runs_are_identical(run_scene):
 
 
 def test_contact_scripts_load_mumps_through_sparse_solver():
-    # Loading MUMPS_seq directly would bring the threaded Scotch ordering back.
+    # Loading MUMPS_seq anywhere else would bring the threaded Scotch ordering back.
     direct = re.compile(r'^\s*load\s+"MUMPS_seq"', re.MULTILINE)
-    sparse = re.compile(r'^\s*include\s+"lib/sparse_solver\.idp"', re.MULTILINE)
-    for script in sorted((REPO / "freefem").glob("*.edp")):
-        text = script.read_text()
-        assert not direct.search(text), f"{script.name} loads MUMPS_seq directly"
-        if "newton_fd.idp" in text:     # the Newton solves use sparsesolver
-            assert sparse.search(text), f"{script.name} does not include lib/sparse_solver.idp"
+    newton = re.compile(r'^\s*include\s+"freefem/lib/core/newton\.idp"', re.MULTILINE)
+    sparse = re.compile(r'^\s*include\s+"freefem/lib/core/sparse_solver\.idp"', re.MULTILINE)
+    solver = REPO / "freefem" / "lib" / "core" / "sparse_solver.idp"
+    checked = 0
+    for path in sorted((REPO / "freefem").rglob("*.[ei]dp")):
+        text = path.read_text()
+        if path.resolve() != solver.resolve():
+            assert not direct.search(text), f"{path.name} loads MUMPS_seq directly"
+        if newton.search(text):     # the Newton solves use sparsesolver
+            checked += 1
+            assert sparse.search(text), f"{path.name} includes core/newton.idp but not core/sparse_solver.idp"
+    assert checked == 3     # the 2D and 3D facades and the fitted two-body tool

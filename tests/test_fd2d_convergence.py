@@ -30,7 +30,7 @@ def saved_run(folder, *overrides):
 
 def errors(ref, run, *extra):
     out = run / "errors.json"
-    proc = run_freefem("fd_error_2d.edp", "-ref", ref, "-run", run, "-out", out, *extra)
+    proc = run_freefem("tools/fd_error_2d.edp", "-ref", ref, "-run", run, "-out", out, *extra)
     assert proc.returncode == 0, proc.stdout[-2000:]
     return json.loads(out.read_text())
 

@@ -88,7 +88,7 @@ def test_error_routine_measures_a_known_shift(run_scene, tmp_path):
     # A saved P2 run against itself shifted by a constant c: |c| |Omega_i|^(1/2) in L2 and H1.
     run = run_scene(BALL, "mesh.nx=4", "method.degree=2", "output.save_solution=true", "output.vtu=false")
     out = tmp_path / "errors.json"
-    proc = subprocess.run(["FreeFem++", "-nw", "-v", "0", "freefem/fd_error_3d.edp", "-ref", str(run.folder),
+    proc = subprocess.run(["FreeFem++", "-nw", "-v", "0", "freefem/tools/fd_error_3d.edp", "-ref", str(run.folder),
                            "-run", str(run.folder), "-shift_z", "1e-3", "-out", str(out)],
                           cwd=REPO, env=freefem_env(), capture_output=True, text=True)
     assert proc.returncode == 0, proc.stdout + proc.stderr
@@ -116,7 +116,7 @@ def test_neighbour_stabilization_rescues_theta_one(run_scene):
 def error_tool(ref, run, tmp_path, *extra):
     import json
     out = tmp_path / f"errors{len(list(tmp_path.glob('errors*.json')))}.json"
-    proc = subprocess.run(["FreeFem++", "-nw", "-v", "0", "freefem/fd_error_3d.edp", "-ref", str(ref),
+    proc = subprocess.run(["FreeFem++", "-nw", "-v", "0", "freefem/tools/fd_error_3d.edp", "-ref", str(ref),
                            "-run", str(run), "-out", str(out), *extra],
                           cwd=REPO, env=freefem_env(), capture_output=True, text=True)
     assert proc.returncode == 0, proc.stdout + proc.stderr

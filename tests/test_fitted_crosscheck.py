@@ -15,7 +15,7 @@ def freefem(script, *args):
 @pytest.fixture(scope="module")
 def fitted(tmp_path_factory):
     out = tmp_path_factory.mktemp("fitted") / "run"
-    freefem("fitted_two_body_2d.edp", "-h", "0.025", "-save", "1", "-outdir", str(out))
+    freefem("tools/fitted_two_body_2d.edp", "-h", "0.025", "-save", "1", "-outdir", str(out))
     return out
 
 
@@ -27,7 +27,7 @@ def test_fitted_solver_balances_the_disk(fitted):
 
 
 def test_crosscheck_against_itself_and_a_fictitious_domain_run(fitted, tmp_path):
-    freefem("fd_vs_fitted_2d.edp", "-fitted", str(fitted), "-fd", str(fitted),
+    freefem("tools/fd_vs_fitted_2d.edp", "-fitted", str(fitted), "-fd", str(fitted),
             "-out", str(tmp_path / "self.json"))
     same = json.loads((tmp_path / "self.json").read_text())
     assert max(same[k] for k in ("l2_body1", "l2_body2", "h1_body1", "h1_body2")) < 1e-12
@@ -35,7 +35,7 @@ def test_crosscheck_against_itself_and_a_fictitious_domain_run(fitted, tmp_path)
     proc = run_cli("run", "cases/disk_on_slab.toml", "--out", str(fd), "--set", "mesh.nx=40",
                    "--set", "output.save_solution=true", "--set", "output.vtu=false")
     assert proc.returncode == 0, proc.stderr
-    freefem("fd_vs_fitted_2d.edp", "-fitted", str(fitted), "-fd", str(fd),
+    freefem("tools/fd_vs_fitted_2d.edp", "-fitted", str(fitted), "-fd", str(fd),
             "-out", str(tmp_path / "diff.json"))
     diff = json.loads((tmp_path / "diff.json").read_text())
     # both are about 5 % accurate in H1 at h = 1/40: they must agree to that level

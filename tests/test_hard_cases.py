@@ -43,7 +43,7 @@ def reference(tmp_path_factory):
 
 def h1_error(ref, run):
     out = run / "errors.json"
-    proc = run_freefem("fd_error_2d.edp", "-ref", ref, "-run", run, "-out", out)
+    proc = run_freefem("tools/fd_error_2d.edp", "-ref", ref, "-run", run, "-out", out)
     assert proc.returncode == 0, proc.stdout[-2000:]
     err = json.loads(out.read_text())
     return math.hypot(err["h1_body1"], err["h1_body2"])

@@ -81,7 +81,7 @@ def test_no_freefem_file_calls_a_shell_with_a_path():
     calls = []
     for path in sorted((REPO / "freefem").rglob("*.[ei]dp")):
         calls += [path.name for line in path.read_text().splitlines() if "exec(" in line or "system(" in line]
-    assert calls == ["fitted_two_body2d.idp"]
+    assert calls == ["fitted_two_body.idp"]
 
 
 # ---- no lost data -----------------------------------------------------------------------
