@@ -53,7 +53,7 @@ OUTSIDE = re.compile(r"DESIGN\.md|\.\./shared|\bissues? #?\d+|/issues/\d+")
 def test_nothing_points_outside_the_repository():
     """Documentation and code name only what is in the repository: no external design notes or issue numbers."""
     paths = [REPO / "README.md", REPO / "Makefile"]
-    for folder, pattern in (("docs", "*.md"), ("driver", "*.py"), ("tests", "*.py"), ("cases", "*")):
+    for folder, pattern in (("docs", "*.md"), ("driver", "*.py"), ("tests", "*.py"), ("cases", "*"), ("freefem", "*")):
         paths += [p for p in (REPO / folder).rglob(pattern) if p.is_file() and "__pycache__" not in p.parts]
     for path in paths:
         for number, line in enumerate(path.read_text(errors="replace").splitlines(), 1):

@@ -1,5 +1,5 @@
 // Disk (body 1 of the disk-on-slab scene, cases/disk_on_slab.toml) for the body-fitted
-// cross-check (freefem/fitted_two_body_2d.edp). Parameters (gmsh -setnumber):
+// cross-check (freefem/tools/fitted_two_body_2d.edp). Parameters (gmsh -setnumber):
 // lc mesh size, cx cy centre, r radius. Physical ids: curve 1 = the whole circle
 // (contact boundary Gamma_1C), surface 1. The centre, the point (cx, cy + 0.4 r)
 // (the second x-fixing point, (0, 0.1) for r = 0.25) and the lowest point

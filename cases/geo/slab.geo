@@ -1,5 +1,5 @@
 // Slab (body 2 of the disk-on-slab scene, cases/disk_on_slab.toml) for the body-fitted
-// cross-check (freefem/fitted_two_body_2d.edp). Parameters (gmsh -setnumber):
+// cross-check (freefem/tools/fitted_two_body_2d.edp). Parameters (gmsh -setnumber):
 // lc mesh size, box [x0, x1] x [y0, y1]. Physical curve ids follow FreeFEM's
 // square(): 1 bottom (clamped), 2 right, 3 top (contact side), 4 left; surface 1.
 // The point (0, y1) under the initial contact point is a mesh node.
