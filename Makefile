@@ -86,7 +86,7 @@ bench: setup
 
 # Fictitious-domain ball on slab (3D): P1 (theta = 1, 0, -1) and P2 ladders against a
 # P2 reference graded toward the contact point (cube(15) refined by tetgen to h = 1/60
-# within 0.16 of it; FD3D_REFERENCE_* in driver/fd3d_studies.py; computed once into
+# within 0.16 of it; FD3D_REFERENCE_* in driver/studies/fd3d.py; computed once into
 # runs/reference/: 294k DOFs, 26 min, 16.6 GiB peak), cost against DOFs, the centre-cut von Mises figure; then the
 # estimator-driven tetgen refinement against uniform refinement (fd3d-adaptive).
 .PHONY: fd3d-study

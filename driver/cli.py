@@ -7,6 +7,7 @@ import sys
 
 from driver.errors import DriverError
 from driver.runner import Interrupted
+from driver.studies import REGISTRY as STUDY_NAMES
 
 
 def cmd_run(args):
@@ -47,20 +48,13 @@ def format_summary(scene, module, results, folder, wall):
     return "\n".join(lines)
 
 
-def all_studies():
-    from driver import bench, fd2d_studies, fd3d_est_studies, fd3d_studies, hard_studies, studies
-
-    return {**studies.STUDIES, **fd2d_studies.STUDIES, **fd3d_studies.STUDIES, **fd3d_est_studies.STUDIES,
-            **hard_studies.STUDIES, "bench": bench.bench, "bench-newton": bench.newton_grid}
-
-
 def cmd_study(args):
     from driver import sweep
+    from driver.studies import study
 
     sweep.configure(workers=args.workers, scheduler=args.scheduler)
-    studies = all_studies()
     for name in args.names:
-        studies[name]()
+        study(name)()
     return 0
 
 
@@ -86,7 +80,7 @@ def build_parser():
     run.add_argument("-v", "--verbose", action="store_true", help="echo FreeFEM's output")
     run.set_defaults(func=cmd_run)
     study = sub.add_parser("study", help="run a study: tables in results/, plots in plots/")
-    study.add_argument("names", nargs="+", choices=sorted(all_studies()))
+    study.add_argument("names", nargs="+", choices=sorted(STUDY_NAMES))
     study.add_argument("--workers", type=int, help="Dask worker processes for the studies that run their "
                        "points as a sweep (fd2d-convergence, fd2d-gamma0; default: the number of cores)")
     study.add_argument("--scheduler", help="send those points to an existing Dask scheduler tcp://HOST:PORT")

@@ -12,6 +12,7 @@ mu or E and nu (not both); adapt.steps > 0 needs output.estimators.
 """
 
 from driver.errors import SceneError
+from driver.materials import body_lame
 from driver.schema import ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_adapt
 
 STABILIZATIONS = ("auto", "none", "neighbour", "ghost")
@@ -116,29 +117,12 @@ SCHEMA = {
 }
 
 
-def lame(body, source, key):
-    """Lame coefficients of a body given either (lambda, mu) or (E, nu), plane strain."""
-    has_lame = body["lambda"] is not None or body["mu"] is not None
-    has_young = body["E"] is not None or body["nu"] is not None
-    if has_lame and has_young:
-        raise SceneError(f"{source}: key '{key}': give either lambda and mu or E and nu, not both")
-    if body["E"] is not None and body["nu"] is not None:
-        E, nu = body["E"], body["nu"]
-        return E * nu / ((1 + nu) * (1 - 2 * nu)), E / (2 * (1 + nu))
-    if body["lambda"] is not None and body["mu"] is not None:
-        lam, mu = body["lambda"], body["mu"]
-        if lam + mu <= 0:
-            raise SceneError(f"{source}: key '{key}.lambda': lambda + mu must be > 0")
-        return lam, mu
-    raise SceneError(f"{source}: key '{key}': needs lambda and mu (or E and nu)")
-
-
 def check(scene, source):
     geo = scene["geometry"]
     if not (geo["xmax"] > geo["xmin"] and geo["ymax"] > geo["ymin"]):
         raise SceneError(f"{source}: key 'geometry': the box is empty (need xmax > xmin, ymax > ymin)")
     for key in ("body1", "body2"):
-        scene[key]["lame"] = lame(scene[key], source, key)
+        scene[key]["lame"] = body_lame(scene[key], source, key)
     disk = scene["body1"]
     (cx, cy), r = disk["centre"], disk["radius"]
     if cx - r <= geo["xmin"] or cx + r >= geo["xmax"] or cy - r <= geo["ymin"] or cy + r >= geo["ymax"]:

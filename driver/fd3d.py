@@ -15,7 +15,8 @@ output.estimators; adapt.switch starts with r, holds a and no p.
 """
 
 from driver.errors import SceneError
-from driver.fd2d import body_schema, lame
+from driver.fd2d import body_schema
+from driver.materials import body_lame
 from driver.schema import ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_adapt
 
 STABILIZATIONS = ("auto", "none", "neighbour")
@@ -115,7 +116,7 @@ def check(scene, source):
     if not all(h > l for l, h in zip(lo, hi)):
         raise SceneError(f"{source}: key 'geometry': the box is empty (need max > min on every axis)")
     for key in ("body1", "body2"):
-        scene[key]["lame"] = lame(scene[key], source, key)
+        scene[key]["lame"] = body_lame(scene[key], source, key)
     ball = scene["body1"]
     c, r = ball["centre"], ball["radius"]
     if any(c[i] - r <= lo[i] or c[i] + r >= hi[i] for i in range(3)):

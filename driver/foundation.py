@@ -13,6 +13,7 @@ not zero; boundary labels exist on the mesh.
 from pathlib import Path
 
 from driver.errors import SceneError
+from driver.materials import young_from_lame
 from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, TableList, at_least, open_interval,
                            positive, put_adapt)
 
@@ -91,10 +92,6 @@ SCHEMA = {
 }
 
 
-def lame_to_young(lam, mu):
-    return mu * (3 * lam + 2 * mu) / (lam + mu), lam / (2 * (lam + mu))
-
-
 def check(scene, source):
     """Cross-field rules the schema cannot express; fills derived values."""
     mat = scene["material"]
@@ -102,7 +99,7 @@ def check(scene, source):
         if mat["lambda"] is not None or mat["mu"] is not None:
             raise SceneError(f"{source}: key 'material': give either E and nu or lambda and mu, not both")
     elif mat["lambda"] is not None and mat["mu"] is not None:
-        E, nu = lame_to_young(mat["lambda"], mat["mu"])
+        E, nu = young_from_lame(mat["lambda"], mat["mu"])
         if not -1.0 < nu < 0.5:
             raise SceneError(f"{source}: key 'material.lambda': gives a Poisson ratio {nu:.4g} outside (-1, 0.5)")
         mat["E"], mat["nu"] = E, nu

@@ -16,7 +16,7 @@ import pandas as pd
 
 from driver.runner import REPO
 from driver.schema import REQUIRED, TableList
-from driver.studies import markdown_table
+from driver.studies.common import markdown_table
 
 RESULTS = REPO / "results"
 DOCS = REPO / "docs"
@@ -69,7 +69,7 @@ def aposteriori_adaptive_summary():
 
 
 def fd2d_rates():
-    from driver.fd2d_studies import rates_table
+    from driver.studies.fd2d import rates_table
 
     return markdown_table(rates_table(pd.read_csv(RESULTS / "fd2d_rates.csv")))
 
@@ -156,19 +156,19 @@ def bench_newton():
 
 
 def hard_cases():
-    from driver.hard_studies import hard_cases_table
+    from driver.studies.hard_cases import hard_cases_table
 
     return hard_cases_table(pd.read_csv(RESULTS / "hard_cases.csv"))
 
 
 def hard_gamma_scaling():
-    from driver.hard_studies import gamma_scaling_table
+    from driver.studies.hard_cases import gamma_scaling_table
 
     return gamma_scaling_table(pd.read_csv(RESULTS / "hard_gamma_scaling.csv"))
 
 
 def hard_conditioning():
-    from driver.hard_studies import conditioning_summary
+    from driver.studies.hard_cases import conditioning_summary
 
     return markdown_table(conditioning_summary(pd.read_csv(RESULTS / "hard_conditioning.csv")))
 
@@ -201,7 +201,7 @@ def fd3d_cost():
 
 
 def fd3d_adaptive():
-    from driver.studies import loglog_slope
+    from driver.studies.common import loglog_slope
 
     t = pd.read_csv(RESULTS / "fd3d_adaptive.csv")
     rows = []

@@ -50,8 +50,8 @@ SWEEPS_DIR = REPO / "runs" / "sweeps"
 RETRY_ON_RESUME = {"KilledWorker", "TaskError"}     # infrastructure failures, not results
 DEFAULT_MAX_RETRIES = 2        # a point may take its worker down this many times, then KilledWorker
 # Sources whose change changes a run's result: their digest is part of every key.
-CODE_FILES = ("driver/runner.py", "driver/scene.py", "driver/schema.py", "driver/fd2d.py",
-              "driver/foundation.py", "driver/studies.py")
+CODE_FILES = ("driver/runner.py", "driver/scene.py", "driver/schema.py", "driver/materials.py",
+              "driver/fd2d.py", "driver/fd3d.py", "driver/foundation.py", "driver/studies/common.py")
 
 SWEEP_KEYS = {"name", "scene", "set", "description"}
 DEBUG_KEYS = {"sleep_s", "crash_points"}
@@ -286,7 +286,7 @@ def points_of(sweep, sweep_dir):
 
 def scene_task(scene_ref, overrides, runs_ref):
     """Run one scene with overrides; a row of the run's scalar results."""
-    from driver.studies import run_point
+    from driver.studies.common import run_point
 
     scene = resolve(scene_ref)
     if not scene.is_file() or file_digest(scene) != scene_ref["sha256"]:

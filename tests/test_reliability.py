@@ -5,7 +5,6 @@ Each test reproduces a reported failure and checks the promised outcome (README,
 """
 
 import json
-import os
 import resource
 import signal
 import subprocess

@@ -140,9 +140,9 @@ def test_failures_are_rows_and_a_point_that_keeps_killing_its_worker_is_bounded(
     assert "KilledWorker" in proc.stdout and isinstance(table.message[2], str) and table.message[2]
     counts = Counter(a[0] for a in attempts(tmp_path))
     assert counts[table.hash[2]] == 2                          # the crash: first try + one retry
-    # (the others ran once, or twice if the retry killed the worker that still held their
-    # finished result before the client fetched it: Dask then recomputes it)
-    assert 1 <= counts[table.hash[0]] <= 2 and 1 <= counts[table.hash[1]] <= 2
+    # (the others ran once, plus once more for each death of a worker that still held their
+    # finished result before the client fetched it: Dask then recomputes it; two deaths here)
+    assert 1 <= counts[table.hash[0]] <= 3 and 1 <= counts[table.hash[1]] <= 3
 
 
 def test_interrupted_sweep_resumes_running_each_point_once(tmp_path):

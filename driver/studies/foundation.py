@@ -1,40 +1,19 @@
-"""Studies: many runs of one scene, one table row per run, tables and plots.
+"""The rigid-foundation studies: Newton on the square, its contact pressure, and the
+residual estimators on uniform and adaptive meshes (docs/foundation.md, docs/estimators.md).
 
 A failed run (Newton, FreeFEM) is a row with its status and message, never
 dropped: tables show what did not converge.
 """
 
-import sys
 from pathlib import Path
 
 import pandas as pd
 
-from driver.errors import DriverError, SceneError
+from driver.errors import DriverError
 from driver.runner import REPO, run_scene
 from driver.scene import load_scene
-
-RESULTS_DIR = REPO / "results"
-PLOTS_DIR = REPO / "plots"
-
-
-def run_point(case, overrides, runs_dir=None):
-    """Run one scene with overrides; returns (row dict, results or None, run folder or None)."""
-    scene, module = load_scene(case, overrides)
-    row = {"case": str(case), "overrides": " ".join(overrides)}
-    try:
-        results, folder, wall = run_scene(scene, module, runs_dir=runs_dir)
-    except SceneError:
-        raise
-    except DriverError as exc:
-        row.update(status=type(exc).__name__, message=str(exc).splitlines()[0])
-        return row, None, None
-    row.update(status="converged", message="", wall_s=wall,
-               newton_iterations=results["newton"]["iterations"], dofs=results["dofs"])
-    return row, results, folder
-
-
-def progress(i, n, text):
-    print(f"[{i}/{n}] {text}", file=sys.stderr, flush=True)
+from driver.studies.common import (PLOTS_DIR, RESULTS_DIR, cached_reference, loglog_slope, markdown_table, progress,
+                                   run_point)
 
 
 def foundation_newton_table():
@@ -94,22 +73,6 @@ def square_pressure_plot():
     print(f"wrote {path}")
 
 
-def markdown_table(frame, digits=4):
-    """A Markdown pipe table for the docs (numbers to `digits` significant figures)."""
-    def cell(value):
-        if isinstance(value, float):
-            return "" if value != value else f"{value:.{digits}g}"
-        return str(value)
-
-    lines = ["| " + " | ".join(frame.columns) + " |", "|" + "---|" * len(frame.columns)]
-    lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in frame.itertuples(index=False)]
-    return "\n".join(lines)
-
-
-STUDIES = {
-    "foundation-newton": foundation_newton_table,
-    "square-pressure": square_pressure_plot,
-}
 
 
 # ---------------------------------------------------------------------------
@@ -121,15 +84,6 @@ SQUARE_REFERENCE_SETTINGS = ["mesh.nx=16", "adapt.steps=30", "adapt.growth=2.5",
                              "adapt.max_dofs=1500000", "output.save_solution=true",
                              "output.vtu=false", "output.pressure_csv=false"]
 UNIFORM_NX = (8, 16, 32, 64, 80)
-
-
-def cached_reference(folder, what, compute):
-    """A reference run kept in runs/reference/: computed once. Its results.json is
-    written last and atomically, so its presence means the run is complete."""
-    if not (folder / "results.json").is_file():
-        print(f"computing {what} in {folder}", file=sys.stderr, flush=True)
-        compute()
-    return folder
 
 
 def square_reference():
@@ -156,13 +110,6 @@ def estimator_rows(results, **labels):
                          newton_iterations=int(steps["newton_iterations"][i]),
                          cpu_s=steps["cpu_s"][i]))
     return rows
-
-
-def loglog_slope(x, y):
-    import numpy as np
-
-    x, y = np.log(np.asarray(x, float)), np.log(np.asarray(y, float))
-    return float(np.polyfit(x, y, 1)[0])
 
 
 def aposteriori_uniform():
@@ -331,8 +278,3 @@ def square_adapted_vonmises():
     print(f"wrote {PLOTS_DIR / 'square_adapted_vonmises.png'}")
 
 
-STUDIES.update({
-    "aposteriori-uniform": aposteriori_uniform,
-    "aposteriori-adaptive": aposteriori_adaptive,
-    "square-adapted": square_adapted_vonmises,
-})

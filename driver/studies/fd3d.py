@@ -14,10 +14,10 @@ import numpy as np
 import pandas as pd
 
 from driver.errors import DriverError, SceneError
-from driver.fd2d_studies import rates_of
+from driver.studies.fd2d import rates_of
 from driver.runner import REPO, parse_json_file, run_freefem_tool, run_scene
 from driver.scene import load_scene
-from driver.studies import PLOTS_DIR, RESULTS_DIR, cached_reference, loglog_slope, markdown_table, progress
+from driver.studies.common import PLOTS_DIR, RESULTS_DIR, cached_reference, loglog_slope, markdown_table, progress
 
 BALL = REPO / "cases" / "ball_on_slab.toml"
 # The reference: P2, theta = -1, on cube(nx) refined by tetgen toward the contact
@@ -326,5 +326,3 @@ def vonmises_figure(folder=None, scale=3.0):
     plt.close(fig)
     print(f"wrote {PLOTS_DIR / 'ball_on_slab_vonmises.png'}")
 
-
-STUDIES = {"fd3d-convergence": convergence, "ball-on-slab-figure": vonmises_figure}

@@ -7,12 +7,11 @@ hard-conditioning -> results/hard_conditioning.csv, plots/conditioning.png
 (make hard-study runs both and refills the tables of docs/hard-cases.md).
 """
 
-import numpy as np
 import pandas as pd
 
 from driver.errors import DriverError
 from driver.runner import REPO
-from driver.studies import PLOTS_DIR, RESULTS_DIR, markdown_table, progress, run_point
+from driver.studies.common import PLOTS_DIR, RESULTS_DIR, markdown_table, progress, run_point
 
 HARD = REPO / "cases" / "hard"
 QUIET = ["output.vtu=false", "output.pressure_csv=false"]
@@ -58,14 +57,14 @@ def summary(results):
 
 
 def hard_reference():
-    from driver.fd2d_studies import reference
+    from driver.studies.fd2d import reference
 
     return reference(HARD_REFERENCE_NX)
 
 
 def run_with_errors(ref, case, overrides):
     """(row, results): a saved run of a hard scene and its relative errors against ref."""
-    from driver.fd2d_studies import errors_against
+    from driver.studies.fd2d import errors_against
 
     row, results, folder = run_point(case, [*overrides, "output.save_solution=true", *QUIET])
     if results is None:
@@ -269,5 +268,3 @@ def plot_conditioning(table):
     fig.savefig(PLOTS_DIR / "conditioning.png", dpi=110)
     print(f"wrote {PLOTS_DIR / 'conditioning.png'}")
 
-
-STUDIES = {"hard-cases": hard_cases, "hard-conditioning": hard_conditioning}

@@ -12,9 +12,10 @@ import numpy as np
 import pandas as pd
 
 from driver.errors import DriverError
+from driver.materials import young_from_lame
 from driver.runner import REPO, run_freefem_tool, run_scene
 from driver.scene import load_scene
-from driver.studies import (PLOTS_DIR, RESULTS_DIR, cached_reference, loglog_slope, markdown_table, progress,
+from driver.studies.common import (PLOTS_DIR, RESULTS_DIR, cached_reference, loglog_slope, markdown_table, progress,
                             run_point)
 from driver.sweep import file_digest, run_points, task_point
 
@@ -73,7 +74,7 @@ def run_with_errors_points(ref, grid):
     """run_with_errors as sweep points (Dask, resumable): grid = [(overrides, labels), ...].
     The key covers the reference's results.json, so a new reference means new points."""
     extra = {"reference": file_digest(Path(ref) / "results.json")}
-    return [task_point("driver.fd2d_studies:run_with_errors", (str(ref), overrides, labels), labels, DISK,
+    return [task_point("driver.studies.fd2d:run_with_errors", (str(ref), overrides, labels), labels, DISK,
                        [*overrides, "output.save_solution=true", *QUIET], extra=extra, index=i)
             for i, (overrides, labels) in enumerate(grid)]
 
@@ -257,13 +258,6 @@ def check_bars(table):
     return rates, failures
 
 
-STUDIES = {
-    "fd2d-convergence": convergence,
-    "fd2d-gamma0": gamma0_sweep,
-    "fd2d-stabilization": stabilization,
-    "fd2d-theta1-stabilization": theta1_stabilization,
-}
-
 
 
 FITTED_H = 320          # fitted meshes of the two bodies, h = 1/320 (P2)
@@ -310,8 +304,6 @@ def crosscheck():
     return table
 
 
-STUDIES["fd2d-crosscheck"] = crosscheck
-
 
 def pressure_profiles():
     """Contact pressure along the lower disk boundary, NX = 40, 80, 160 (P2), without and
@@ -343,11 +335,7 @@ def pressure_profiles():
     print(f"wrote {PLOTS_DIR / 'disk_on_slab_pressure.png'}")
 
 
-STUDIES["disk-pressure"] = pressure_profiles
 
-
-def young(lam, mu):
-    return mu * (3 * lam + 2 * mu) / (lam + mu)
 
 
 def estimator_row(folder, results, err, labels, step=None):
@@ -357,7 +345,8 @@ def estimator_row(folder, results, err, labels, step=None):
     scene = json.loads((folder / "scene.json").read_text())
     (lam1, mu1), (lam2, mu2) = scene["body1"]["lame"], scene["body2"]["lame"]
     abs_err = err["absolute"]
-    energy = np.hypot(young(lam1, mu1) * abs_err["h1_body1"], young(lam2, mu2) * abs_err["h1_body2"])
+    young1, young2 = young_from_lame(lam1, mu1)[0], young_from_lame(lam2, mu2)[0]
+    energy = np.hypot(young1 * abs_err["h1_body1"], young2 * abs_err["h1_body2"])
     if step is None:
         est, dofs, areas = results["estimator"], results["dofs"], results["areas"]
         area1, area2 = areas["body1"], areas["body2"]
@@ -432,5 +421,3 @@ def aposteriori():
     print(f"wrote {PLOTS_DIR / 'fd_adaptive.png'}")
     return table
 
-
-STUDIES["fd-aposteriori"] = aposteriori

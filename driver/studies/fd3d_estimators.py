@@ -9,7 +9,7 @@ import os
 import pandas as pd
 
 from driver.runner import REPO
-from driver.studies import PLOTS_DIR, RESULTS_DIR, loglog_slope, markdown_table, progress, run_point
+from driver.studies.common import PLOTS_DIR, RESULTS_DIR, loglog_slope, markdown_table, progress, run_point
 
 BALL = REPO / "cases" / "ball_on_slab.toml"
 QUIET = ["output.vtu=false", "output.csv=false"]
@@ -77,5 +77,3 @@ def plot(table, slopes):
     fig.savefig(PLOTS_DIR / "fd3d_adaptive.png", dpi=120)
     plt.close(fig)
 
-
-STUDIES = {"fd3d-adaptive": adaptive_study}

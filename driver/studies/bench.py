@@ -19,8 +19,8 @@ import numpy as np
 import pandas as pd
 
 from driver.errors import DriverError
-from driver.fd2d_studies import DISK, QUIET, errors_against, reference
-from driver.studies import PLOTS_DIR, RESULTS_DIR, loglog_slope, markdown_table, progress, run_point
+from driver.studies.fd2d import DISK, QUIET, errors_against, reference
+from driver.studies.common import PLOTS_DIR, RESULTS_DIR, loglog_slope, markdown_table, progress, run_point
 
 PHASES = ("geometry", "assembly", "newton_contact_assembly", "newton_factor_solve", "estimators", "output")
 LADDER = (10, 20, 40, 80, 160)

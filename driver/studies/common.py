@@ -1,0 +1,59 @@
+"""What every study shares: where tables and figures go, one run as a table row,
+cached references, log-log slopes and Markdown tables."""
+
+import sys
+
+import numpy as np
+
+from driver.errors import DriverError, SceneError
+from driver.runner import REPO, run_scene
+from driver.scene import load_scene
+
+RESULTS_DIR = REPO / "results"
+PLOTS_DIR = REPO / "plots"
+
+
+def run_point(case, overrides, runs_dir=None):
+    """Run one scene with overrides; returns (row dict, results or None, run folder or None)."""
+    scene, module = load_scene(case, overrides)
+    row = {"case": str(case), "overrides": " ".join(overrides)}
+    try:
+        results, folder, wall = run_scene(scene, module, runs_dir=runs_dir)
+    except SceneError:
+        raise
+    except DriverError as exc:
+        row.update(status=type(exc).__name__, message=str(exc).splitlines()[0])
+        return row, None, None
+    row.update(status="converged", message="", wall_s=wall,
+               newton_iterations=results["newton"]["iterations"], dofs=results["dofs"])
+    return row, results, folder
+
+
+def progress(i, n, text):
+    print(f"[{i}/{n}] {text}", file=sys.stderr, flush=True)
+
+
+def markdown_table(frame, digits=4):
+    """A Markdown pipe table for the docs (numbers to `digits` significant figures)."""
+    def cell(value):
+        if isinstance(value, float):
+            return "" if value != value else f"{value:.{digits}g}"
+        return str(value)
+
+    lines = ["| " + " | ".join(frame.columns) + " |", "|" + "---|" * len(frame.columns)]
+    lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in frame.itertuples(index=False)]
+    return "\n".join(lines)
+
+
+def cached_reference(folder, what, compute):
+    """A reference run kept in runs/reference/: computed once. Its results.json is
+    written last and atomically, so its presence means the run is complete."""
+    if not (folder / "results.json").is_file():
+        print(f"computing {what} in {folder}", file=sys.stderr, flush=True)
+        compute()
+    return folder
+
+
+def loglog_slope(x, y):
+    x, y = np.log(np.asarray(x, float)), np.log(np.asarray(y, float))
+    return float(np.polyfit(x, y, 1)[0])
