@@ -13,7 +13,8 @@ mu or E and nu (not both); adapt.steps > 0 needs output.estimators.
 
 from driver.errors import SceneError
 from driver.materials import body_lame
-from driver.schema import ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_adapt
+from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_adapt,
+                           two_body_solver_schema)
 
 STABILIZATIONS = ("auto", "none", "neighbour", "ghost")
 GAMMA_SCALINGS = ("shear", "none", "body1", "mean_compliance")
@@ -83,24 +84,10 @@ SCHEMA = {
                                    "gamma = gamma0 h_K / E1 (Young modulus of the disk, whose sigma_n enters the "
                                    "Nitsche terms); mean_compliance: gamma = gamma0 h_K (1/E1 + 1/E2)/2"),
     },
-    "solver": {
-        "newton_tol": Field("float", default=1e-9, check=positive, unit="1",
-                            doc="Newton stops when the relative nonlinear residual is below this and the "
-                                "active set is stable"),
-        "newton_max": Field("int", default=30, check=at_least(1), doc="Newton iteration limit (then exit 3)"),
-        "contact_points": Field("int", default=3, choices=(1, 2, 3, 4), doc="Gauss points per cut segment"),
-        "active0": Field("float", default=0.1, check=at_least(0.0), unit="1",
-                         doc="first active set: gap <= active0 * h (then a secant predictor)"),
-        "predictor_steps": Field("int", default=4, check=at_least(0),
-                                 doc="Newton steps of the secant predictor on the active measure"),
-        "refactor_points": Field("int", default=12, check=at_least(0),
-                                 doc="re-use the factorization (GMRES) when fewer points changed"),
-        "time_final_solve": Field("bool", default=False,
-                                  doc="benchmarks: time one extra factorization and solve of the final system"),
-        "allow_unbalanced": Field("bool", default=False,
-                                  doc="keep a run whose pins or mass term carry more than 1e-6 of the disk's "
-                                      "load (flagged in results.json 'balance'); refused (exit 3) otherwise"),
-    },
+    "solver": dict(two_body_solver_schema("disk", Field(
+        "int", default=3, choices=(1, 2, 3, 4), doc="Gauss points per cut segment")),
+        time_final_solve=Field("bool", default=False,
+                               doc="benchmarks: time one extra factorization and solve of the final system")),
     "adapt": dict(ADAPT_SCHEMA, warm_start=Field(
         "int", default=1, choices=(0, 1, 2),
         doc="Newton start after adaptation: 0 default, 1 previous active measure, 2 previous solution")),

@@ -17,7 +17,8 @@ output.estimators; adapt.switch starts with r, holds a and no p.
 from driver.errors import SceneError
 from driver.fd2d import body_schema
 from driver.materials import body_lame
-from driver.schema import ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_adapt
+from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_adapt,
+                           two_body_solver_schema)
 
 STABILIZATIONS = ("auto", "none", "neighbour")
 
@@ -75,23 +76,8 @@ SCHEMA = {
                                doc="shear: gamma = gamma0 h_K / muStar, muStar = 2 mu1 mu2/(mu1 + mu2) (gamma0 "
                                    "dimensionless); none: gamma = gamma0 h_K (gamma0 in 1/stress)"),
     },
-    "solver": {
-        "newton_tol": Field("float", default=1e-9, check=positive, unit="1",
-                            doc="Newton stops when the relative nonlinear residual is below this and the "
-                                "active set is stable"),
-        "newton_max": Field("int", default=30, check=at_least(1), doc="Newton iteration limit (then exit 3)"),
-        "contact_points": Field("int", default=0, choices=(0, 1, 3, 6),
-                                doc="points per interface triangle (0: 3 for P1, 6 for P2)"),
-        "active0": Field("float", default=0.1, check=at_least(0.0), unit="1",
-                         doc="first active set: gap <= active0 * h (then a secant predictor)"),
-        "predictor_steps": Field("int", default=4, check=at_least(0),
-                                 doc="Newton steps of the secant predictor on the active measure"),
-        "refactor_points": Field("int", default=12, check=at_least(0),
-                                 doc="re-use the factorization (GMRES) when fewer points changed"),
-        "allow_unbalanced": Field("bool", default=False,
-                                  doc="keep a run whose pins or mass term carry more than 1e-6 of the ball's "
-                                      "load (flagged in results.json 'balance'); refused (exit 3) otherwise"),
-    },
+    "solver": two_body_solver_schema("ball", Field(
+        "int", default=0, choices=(0, 1, 3, 6), doc="points per interface triangle (0: 3 for P1, 6 for P2)")),
     "adapt": dict(ADAPT_SCHEMA, switch=Field(
         "str", default="rqaAQ",
         doc="tetgen switches of tetgreconstruction (r refine, q quality, a volume bounds); must start with r, "

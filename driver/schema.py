@@ -130,6 +130,27 @@ class FreeFemFlags(list):
         self.extend([f"-{key}", repr(value) if isinstance(value, float) else str(value)])
 
 
+def two_body_solver_schema(floating_body, contact_points):
+    """The [solver] keys of the two-body scripts (2D and 3D): semi-smooth Newton and its start."""
+    return {
+        "newton_tol": Field("float", default=1e-9, check=positive, unit="1",
+                            doc="Newton stops when the relative nonlinear residual is below this and the "
+                                "active set is stable"),
+        "newton_max": Field("int", default=30, check=at_least(1), doc="Newton iteration limit (then exit 3)"),
+        "contact_points": contact_points,
+        "active0": Field("float", default=0.1, check=at_least(0.0), unit="1",
+                         doc="first active set: gap <= active0 * h (then a secant predictor)"),
+        "predictor_steps": Field("int", default=4, check=at_least(0),
+                                 doc="Newton steps of the secant predictor on the active measure"),
+        "refactor_points": Field("int", default=12, check=at_least(0),
+                                 doc="re-use the factorization (GMRES) when fewer points changed"),
+        "allow_unbalanced": Field("bool", default=False,
+                                  doc=f"keep a run whose pins or mass term carry more than 1e-6 of the "
+                                      f"{floating_body}'s load (flagged in results.json 'balance'); refused "
+                                      f"(exit 3) otherwise"),
+    }
+
+
 # Estimator-driven adaptation, the same keys for every script that adapts.
 ADAPT_SCHEMA = {
     "steps": Field("int", default=0, check=at_least(0),
