@@ -5,6 +5,7 @@ import json
 import pytest
 
 from conftest import run_cli, run_freefem
+from driver.studies.fd2d import fitted_meshes
 
 
 def freefem(script, *args):
@@ -15,8 +16,18 @@ def freefem(script, *args):
 @pytest.fixture(scope="module")
 def fitted(tmp_path_factory):
     out = tmp_path_factory.mktemp("fitted") / "run"
-    freefem("tools/fitted_two_body_2d.edp", "-h", "0.025", "-save", "1", "-outdir", str(out))
+    disk, slab = fitted_meshes(out.parent, 0.025)
+    freefem("tools/fitted_two_body_2d.edp", "-h", "0.025", "-mesh1", str(disk), "-mesh2", str(slab),
+            "-save", "1", "-outdir", str(out))
     return out
+
+
+def test_direct_run_meshes_the_bodies_without_gmsh(tmp_path):
+    out = tmp_path / "run"
+    freefem("tools/fitted_two_body_2d.edp", "-h", "0.05", "-outdir", str(out))
+    r = json.loads((out / "results.json").read_text())
+    assert r["status"] == "converged" and r["mesh_body1"] == "buildmesh"
+    assert r["contact"]["force_balance_error"] < 1e-6
 
 
 def test_fitted_solver_balances_the_disk(fitted):

@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 
 from driver.errors import DriverError
-from driver.runner import REPO, run_freefem_tool, run_scene
+from driver.runner import REPO, run_command, run_freefem_tool, run_scene
 from driver.scene import load_scene
 from driver.studies.common import (PLOTS_DIR, RESULTS_DIR, cached_reference, loglog_slope, markdown_table, progress,
                             run_point)
@@ -262,13 +262,32 @@ def check_bars(table):
 FITTED_H = 320          # fitted meshes of the two bodies, h = 1/320 (P2)
 
 
+def fitted_meshes(folder, h):
+    """gmsh meshes of the disk-on-slab bodies at size h (cases/geo/disk.geo, slab.geo: the
+    disk's centre, its second pin and the first contact point are nodes), for
+    tools/fitted_two_body_2d.edp -mesh1 -mesh2. Returns the two paths."""
+    geo = REPO / "cases" / "geo"
+    meshes = []
+    for body, numbers in (("disk", {"cx": 0.0, "cy": 0.0, "r": 0.25}),
+                          ("slab", {"x0": -0.5, "x1": 0.5, "y0": -0.5, "y1": -0.25})):
+        path = Path(folder) / f"{body}.msh"
+        command = ["gmsh", "-2", "-format", "msh22", "-v", "1", "-setnumber", "lc", repr(h)]
+        for name, value in numbers.items():
+            command += ["-setnumber", name, repr(value)]
+        run_command(command + [str(geo / f"{body}.geo"), "-o", str(path)], f"gmsh ({body})")
+        meshes.append(path)
+    return meshes
+
+
 def fitted_reference():
     """The disk on slab on body-fitted gmsh meshes (P2, theta = -1)."""
     folder = REPO / "runs" / "reference" / f"disk_on_slab_fitted_h{FITTED_H}"
 
     def compute():
         folder.mkdir(parents=True, exist_ok=True)
-        run_freefem_tool("fitted_two_body_2d.edp", ["-h", repr(1.0 / FITTED_H), "-save", "1", "-vtu", "0",
+        disk, slab = fitted_meshes(folder, 1.0 / FITTED_H)
+        run_freefem_tool("fitted_two_body_2d.edp", ["-h", repr(1.0 / FITTED_H), "-mesh1", str(disk),
+                                                    "-mesh2", str(slab), "-save", "1", "-vtu", "0",
                                                     "-csv", "0", "-outdir", str(folder)],
                          folder / "results.json", "body-fitted disk on slab")
 
