@@ -99,27 +99,23 @@ def is_package_run(folder):
         (folder / name).is_file() for name in ("scene.json", "command.txt", "freefem.log"))
 
 
-def refuse(message):
-    raise SceneError(message)
-
-
 def check_output_folder(final, replace):
     """Refuse an --out that would lose data: a place that is not a run of this package,
     a previous run without replace=True, the checkout, its parents, the home folder."""
     protected = {Path("/"), Path.home().resolve(), REPO}
     if final in protected or final in REPO.parents or final in Path.home().resolve().parents:
-        refuse(f"--out {final}: refusing to write a run into the checkout, its parent folders "
-               f"or the home folder; name a new folder")
+        raise SceneError(f"--out {final}: refusing to write a run into the checkout, its parent folders "
+                         f"or the home folder; name a new folder")
     if final.is_symlink() or (final.exists() and not final.is_dir()):
-        refuse(f"--out {final}: exists and is not a folder")
+        raise SceneError(f"--out {final}: exists and is not a folder")
     if final.is_dir():
         if is_package_run(final):
             if (final / "results.json").is_file() and not replace:
-                refuse(f"--out {final}: holds a previous run; pass --replace to replace it "
-                       f"(the old run stays until the new one has converged)")
+                raise SceneError(f"--out {final}: holds a previous run; pass --replace to replace it "
+                                 f"(the old run stays until the new one has converged)")
         elif any(final.iterdir()):
-            refuse(f"--out {final}: exists and is not a run of this package; "
-                   f"name a new or empty folder (nothing in it was touched)")
+            raise SceneError(f"--out {final}: exists and is not a run of this package; "
+                             f"name a new or empty folder (nothing in it was touched)")
 
 
 def pid_alive(pid):
@@ -144,26 +140,24 @@ def claim_staging(staging, final):
             except (OSError, ValueError):
                 owner = None
             if owner is not None and pid_alive(owner) or not is_package_run(staging):
-                refuse(f"--out {final}: another run is writing to it"
+                raise SceneError(f"--out {final}: another run is writing to it"
                        + (f" (driver pid {owner})" if owner else f" ({staging} exists)"))
             shutil.rmtree(staging)   # left by a driver that was killed
             continue
         (staging / MARKER).write_text("fdcontact run folder\n")
         (staging / "driver.pid").write_text(f"{os.getpid()}\n")
         return
-    refuse(f"--out {final}: could not claim {staging}")
+    raise SceneError(f"--out {final}: could not claim {staging}")
 
 
 def failed_folder(final):
-    """Where a failed run's log goes: FINAL.failed (replacing only an earlier failure)."""
+    """Where a failed run's log goes: FINAL.failed, or FINAL.failed-2, -3, ... beside
+    earlier failures (a run deletes nothing it did not create)."""
     for k in range(1, 1000):
         failed = final.with_name(final.name + (".failed" if k == 1 else f".failed-{k}"))
         if not failed.exists():
             return failed
-        if is_package_run(failed) and not (failed / "results.json").exists():
-            shutil.rmtree(failed)
-            return failed
-    refuse(f"{final}: too many failed runs beside it")
+    raise SceneError(f"{final}: 999 failed runs beside it; remove some")
 
 
 def publish(staging, final):
