@@ -1,4 +1,4 @@
-"""Command line: python -m driver run SCENE [--set key=value ...], study, sweep, readme."""
+"""Command line: python -m driver run SCENE [--set key=value ...], scene-module, study, sweep, readme."""
 
 import argparse
 import re
@@ -48,6 +48,17 @@ def format_summary(scene, module, results, folder, wall):
     return "\n".join(lines)
 
 
+def cmd_scene_module(args):
+    from driver.scene import load_scene
+
+    scene, module = load_scene(args.scene, args.set)
+    if not hasattr(module, "scene_module"):
+        print(f"error: {scene['scene']['script']} takes no scene module", file=sys.stderr)
+        return 2
+    sys.stdout.write(module.scene_module(scene))
+    return 0
+
+
 def cmd_study(args):
     from driver import sweep
     from driver.studies import study
@@ -79,6 +90,11 @@ def build_parser():
     run.add_argument("--script", help="use this .edp instead of the scene's script (development)")
     run.add_argument("-v", "--verbose", action="store_true", help="echo FreeFEM's output")
     run.set_defaults(func=cmd_run)
+    module = sub.add_parser("scene-module", help="print the FreeFEM scene module of a scene "
+                                                 "(docs/scene-modules.md) without running it")
+    module.add_argument("scene", help="scene file (TOML)")
+    module.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="as for run")
+    module.set_defaults(func=cmd_scene_module)
     study = sub.add_parser("study", help="run a study: tables in results/, plots in plots/")
     study.add_argument("names", nargs="+", choices=sorted(STUDY_NAMES))
     study.add_argument("--workers", type=int, help="Dask worker processes for the studies that run their "

@@ -1,18 +1,29 @@
 """Scenes for freefem/fd_contact_2d.edp: two bodies on one background mesh (fictitious domain).
 
-Body 1 is a disk, body 2 a slab {y < top} of the box, held either strongly on the
-box bottom or, with `bottom_line = [a, b]`, by Nitsche-Dirichlet on the line
-y = a + b x that cuts the mesh.
+Each body is a shape tree (driver/geometry.py: disk, ellipse, box with rounded
+corners, half-plane, polygon, a gmsh outline, an expression, and their unions,
+intersections and differences, placed by translate and rotate) with supports
+(`hold`: a displacement on a box face, strongly, or on the part of the cut boundary
+inside a region, by Nitsche) and loads (`load`: a traction likewise; a body force).
+The driver writes them as the run's scene module (driver/scene_module.py,
+docs/scene-modules.md). The legacy shapes "disk" (centre, radius) and "slab" (top,
+bottom_line) of the reference scenes still read as before.
 
-Rules across keys (check below): the box is not empty; the disk lies inside the
-box and not below the slab top; the slab top lies inside the box; a bottom_line
-crosses the box between its bottom and the slab top, and then gamma_scaling is
-shear or none; both fix_x_points lie inside the disk; each body gives lambda and
-mu or E and nu (not both); adapt.steps > 0 needs output.estimators.
+Rules across keys (check below): the box is not empty; each body meets the box and
+they do not overlap at the start; a probe lies in its body; the pins
+(rigid.fix_x_points) lie inside body 1 and act only when body 1 is floating (no
+support holding every component); each body gives lambda and mu or E and nu (not
+both); adapt.steps > 0 needs output.estimators; a Nitsche hold needs
+gamma_scaling shear or none.
 """
+
+from pathlib import Path
+
+import numpy as np
 
 from driver.errors import SceneError
 from driver.materials import body_lame
+from driver.scene_module import Bodies, legacy_supports
 from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_adapt,
                            two_body_solver_schema)
 
@@ -20,9 +31,20 @@ STABILIZATIONS = ("auto", "none", "neighbour", "ghost")
 GAMMA_SCALINGS = ("shear", "none", "body1", "mean_compliance")
 
 
+SHAPE_DOC = ("a shape table {{ type = ..., ... }} (docs/scenes.md, 'Shapes'), or the legacy name {legacy} "
+             "with the keys below")
+HOLD_DOC = ("supports: [[bodyN.hold]] tables, each on a box face (face = \"xmin\" ... ; displacement, "
+            "components) held strongly, or on the cut boundary inside a region (region = {{ shape }}; "
+            "displacement) held by Nitsche")
+LOAD_DOC = ("tractions: [[bodyN.load]] tables, each on a box face (face = ...) or on the cut boundary inside "
+            "a region (region = {{ shape }}), with traction = [...] (force/area)")
+
+
 def body_schema(shape_fields, force):
-    """A body's fields: its shape, Lame (or E, nu) and a volume force of len(force) components."""
+    """A body's fields: its shape, supports, loads, Lame (or E, nu) and a volume force."""
     return dict(shape_fields, **{
+        "hold": Field("tree", default=[], doc=HOLD_DOC),
+        "load": Field("tree", default=[], doc=LOAD_DOC),
         "lambda": Field("float", default=None, unit="stress",
                         doc="first Lame coefficient (give lambda and mu, or E and nu); lambda + mu > 0"),
         "mu": Field("float", default=None, check=positive, unit="stress", doc="shear modulus (with lambda)"),
@@ -45,24 +67,29 @@ SCHEMA = {
         "nx": Field("int", default=80, check=at_least(2), doc="elements per side of the box (h = width/nx)"),
     },
     "body1": body_schema({
-        "shape": Field("str", default="disk", choices=("disk",), doc="body 1 is a disk, inside the box"),
-        "centre": Field("vector", default=[0.0, 0.0], length=2, unit="length", doc="centre of the disk"),
-        "radius": Field("float", default=0.25, check=positive, unit="length", doc="radius of the disk"),
+        "shape": Field("tree", default="disk", doc=SHAPE_DOC.format(legacy='"disk"')),
+        "centre": Field("vector", default=None, length=2, unit="length",
+                        doc="legacy disk: centre (default [0, 0])"),
+        "radius": Field("float", default=None, check=positive, unit="length",
+                        doc="legacy disk: radius (default 0.25)"),
     }, [0.0, -0.1]),
     "body2": body_schema({
-        "shape": Field("str", default="slab", choices=("slab",), doc="body 2 is the part of the box below top"),
-        "top": Field("float", default=-0.25, unit="length",
-                     doc="height of the slab's top; not above the disk's lowest point"),
-        "bottom_line": Field("vector", default=[], unit="length, 1",
-                             doc="[a, b]: Nitsche-Dirichlet u = 0 on y = a + b x, crossing the box below top; "
-                                 "[] clamps the box bottom strongly"),
+        "shape": Field("tree", default="slab", doc=SHAPE_DOC.format(legacy='"slab" (the box below top)')),
+        "top": Field("float", default=None, unit="length", doc="legacy slab: height of its top (default -0.25)"),
+        "bottom_line": Field("vector", default=None, unit="length, 1",
+                             doc="legacy slab: [a, b]: held by Nitsche on y = a + b x, crossing the box below "
+                                 "top; absent: held strongly on the box bottom"),
     }, [0.0, 0.0]),
+    "probe": Field("tree", default=[], doc="named points: [[probe]] tables with name, point = [x, y] and body "
+                                           "(1 or 2); results.json 'probes' gives their displacement"),
     "rigid": {
         "mass_eps": Field("float", default=1e-7, check=at_least(0.0), unit="1",
-                          doc="mass term eps muStar int u1.v1 against the floating disk's rigid motions "
+                          doc="mass term eps muStar int u.v against the rigid motions of a floating body "
                               "(relative to the shear modulus muStar, see method.gamma_scaling)"),
-        "fix_x_points": Field("vector", default=[0.0, 0.0, 0.0, 0.1], length=4, unit="length",
-                              doc="u1_x = 0 at the nodes nearest to these two points (x1, y1, x2, y2), inside the disk"),
+        "fix_x_points": Field("vector", default=None, unit="length",
+                              doc="pins of a floating body 1: u1_x = 0 at the nodes nearest to two points "
+                                  "[x1, y1, x2, y2] inside it; [] none (default: [0, 0, 0, 0.1] for the legacy "
+                                  "disk, none otherwise)"),
     },
     "method": {
         "degree": Field("int", default=2, choices=(1, 2), doc="finite element degree (P1 or P2)"),
@@ -104,47 +131,79 @@ SCHEMA = {
 }
 
 
+LEGACY_KEYS = {"body1": {"centre": [0.0, 0.0], "radius": 0.25}, "body2": {"top": -0.25, "bottom_line": []}}
+LEGACY_SHAPES = {"body1": "disk", "body2": "slab"}
+
+
+def fill_legacy(scene, source):
+    """Defaults of the legacy shapes; their keys are refused beside a shape table."""
+    for key, defaults in LEGACY_KEYS.items():
+        body = scene[key]
+        legacy = isinstance(body["shape"], str)
+        if legacy and body["shape"] != LEGACY_SHAPES[key]:
+            raise SceneError(f"{source}: key '{key}.shape': a name must be {LEGACY_SHAPES[key]!r} (the legacy "
+                             f"shape); other shapes are tables {{ type = \"{body['shape']}\", ... }}")
+        for name, default in defaults.items():
+            if body[name] is None:
+                body[name] = default
+            elif not legacy:
+                raise SceneError(f"{source}: key '{key}.{name}': belongs to the legacy shape "
+                                 f"{LEGACY_SHAPES[key]!r}, not to a shape table")
+
+
 def check(scene, source):
     geo = scene["geometry"]
     if not (geo["xmax"] > geo["xmin"] and geo["ymax"] > geo["ymin"]):
         raise SceneError(f"{source}: key 'geometry': the box is empty (need xmax > xmin, ymax > ymin)")
     for key in ("body1", "body2"):
         scene[key]["lame"] = body_lame(scene[key], source, key)
-    disk = scene["body1"]
-    (cx, cy), r = disk["centre"], disk["radius"]
-    if cx - r <= geo["xmin"] or cx + r >= geo["xmax"] or cy - r <= geo["ymin"] or cy + r >= geo["ymax"]:
-        raise SceneError(f"{source}: key 'body1': the disk (centre {disk['centre']}, radius {r}) "
-                         f"is not inside the box")
+    fill_legacy(scene, source)
     slab = scene["body2"]
-    if not geo["ymin"] < slab["top"] < geo["ymax"]:
-        raise SceneError(f"{source}: key 'body2.top': the slab top {slab['top']} misses the box "
-                         f"({geo['ymin']}, {geo['ymax']})")
-    if cy - r < slab["top"] - 1e-12:
-        raise SceneError(f"{source}: key 'body1': the disk overlaps the slab initially "
-                         f"(lowest point {cy - r:g} < slab top {slab['top']:g})")
     line = slab["bottom_line"]
-    if line:
-        if len(line) != 2:
-            raise SceneError(f"{source}: key 'body2.bottom_line': expected [a, b] (y = a + b x), got {line}")
-        a, b = line
-        ends = (a + b * geo["xmin"], a + b * geo["xmax"])
-        if not all(geo["ymin"] <= y < slab["top"] for y in ends):
-            raise SceneError(f"{source}: key 'body2.bottom_line': the line y = {a:g} + {b:g} x must cross "
-                             f"the box between its bottom and the slab top")
+    if isinstance(slab["shape"], str):
+        if not geo["ymin"] < slab["top"] < geo["ymax"]:
+            raise SceneError(f"{source}: key 'body2.top': the slab top {slab['top']} misses the box "
+                             f"({geo['ymin']}, {geo['ymax']})")
+        if line:
+            if len(line) != 2:
+                raise SceneError(f"{source}: key 'body2.bottom_line': expected [a, b] (y = a + b x), got {line}")
+            a, b = line
+            ends = (a + b * geo["xmin"], a + b * geo["xmax"])
+            if not all(geo["ymin"] <= y < slab["top"] for y in ends):
+                raise SceneError(f"{source}: key 'body2.bottom_line': the line y = {a:g} + {b:g} x must cross "
+                                 f"the box between its bottom and the slab top")
+    legacy_supports(scene, 2)
+    if isinstance(scene["body1"]["shape"], str) and not scene["probe"]:
+        scene["probe"] = [{"name": "centre", "point": list(scene["body1"]["centre"]), "body": 1}]
+    bodies = Bodies(scene, 2, source, Path(source).parent)
+    scene["_bodies"] = bodies
     if scene["adapt"]["steps"] > 0 and not scene["output"]["estimators"]:
         raise SceneError(f"{source}: key 'output.estimators': adaptation (adapt.steps > 0) needs the estimators")
-    if line and scene["method"]["gamma_scaling"] not in ("none", "shear"):
+    nitsche_hold = any("region" in h for holds in bodies.holds for h in holds)
+    if nitsche_hold and scene["method"]["gamma_scaling"] not in ("none", "shear"):
         raise SceneError(f"{source}: key 'method.gamma_scaling': {scene['method']['gamma_scaling']!r} scales "
-                         f"the contact gamma by the moduli; with body2.bottom_line use 'shear' or 'none'")
+                         f"the contact gamma by the moduli; with a Nitsche hold (a region) use 'shear' or 'none'")
     fix = scene["rigid"]["fix_x_points"]
+    if fix is None:
+        fix = [0.0, 0.0, 0.0, 0.1] if isinstance(scene["body1"]["shape"], str) else []
+    if fix and len(fix) != 4:
+        raise SceneError(f"{source}: key 'rigid.fix_x_points': expected [x1, y1, x2, y2] or [], got {fix}")
+    if fix and not bodies.floating(1):
+        raise SceneError(f"{source}: key 'rigid.fix_x_points': body 1 is held by a support; pins are for a "
+                         f"floating body 1 (use [])")
     for px, py in (fix[:2], fix[2:]):
-        if (px - cx) ** 2 + (py - cy) ** 2 >= r ** 2:
-            raise SceneError(f"{source}: key 'rigid.fix_x_points': ({px:g}, {py:g}) is not inside the disk")
+        if bodies.shapes[0].phi(np.array([px]), np.array([py]))[0] >= 0:
+            raise SceneError(f"{source}: key 'rigid.fix_x_points': ({px:g}, {py:g}) is not inside body 1")
+    scene["rigid"]["fix_x_points"] = fix
+
+
+def scene_module(scene):
+    """Text of the run's scene module (docs/scene-modules.md)."""
+    return scene["_bodies"].module_text(scene["scene"]["name"])
 
 
 def freefem_args(scene, mesh_file=""):
     geo, meth, solver = scene["geometry"], scene["method"], scene["solver"]
-    disk, slab = scene["body1"], scene["body2"]
     args = FreeFemFlags([f"-Ddegree={meth['degree']}"])
     put = args.put
 
@@ -152,20 +211,14 @@ def freefem_args(scene, mesh_file=""):
     for key in ("xmin", "xmax", "ymin", "ymax"):
         put(key, geo[key])
     put("nx", scene["mesh"]["nx"])
-    put("disk_cx", disk["centre"][0])
-    put("disk_cy", disk["centre"][1])
-    put("disk_r", disk["radius"])
-    put("slab_top", slab["top"])
-    if slab["bottom_line"]:
-        put("slab_bottom_a", slab["bottom_line"][0])
-        put("slab_bottom_b", slab["bottom_line"][1])
-    for i, body in ((1, disk), (2, slab)):
+    for i, body in ((1, scene["body1"]), (2, scene["body2"])):
         put(f"lambda{i}", body["lame"][0])
         put(f"mu{i}", body["lame"][1])
         put(f"f{i}x", body["body_force"][0])
         put(f"f{i}y", body["body_force"][1])
     put("mass_eps", scene["rigid"]["mass_eps"])
     fix = scene["rigid"]["fix_x_points"]
+    put("pins", int(bool(fix)))
     for key, value in zip(("fix_ax", "fix_ay", "fix_bx", "fix_by"), fix):
         put(key, value)
     put("theta", meth["theta"])
@@ -198,7 +251,6 @@ def prepare_mesh(scene, workdir, run_command):
 
 def summary_lines(results):
     contact, cut = results["contact"], results["cut"]
-    centre = results["disk"]["centre_displacement"]
     lines = []
     est = results.get("estimator")
     if est:
@@ -208,18 +260,18 @@ def summary_lines(results):
     if len(steps.get("dofs", [])) > 1:
         lines.append(f"adaptation: {len(steps['dofs'])} solves, DOFs {int(steps['dofs'][0])} -> "
                      f"{int(steps['dofs'][-1])}, eta {steps['eta'][0]:.4g} -> {steps['eta'][-1]:.4g}, "
-                     f"disk area {steps['area_body1'][0]:.6f} -> {steps['area_body1'][-1]:.6f}")
+                     f"body 1 area {steps['area_body1'][0]:.6f} -> {steps['area_body1'][-1]:.6f}")
     balance = results.get("balance")
     if balance and balance.get("unbalanced"):
         lines.append(f"UNBALANCED (kept by solver.allow_unbalanced): {balance['message']}")
     return lines + [
         f"bodies: {results['dofs_body1']} + {results['dofs_body2']} DOFs on the cut spaces, "
         f"areas {results['areas']['body1']:.6g} and {results['areas']['body2']:.6g}",
-        f"disk centre displacement: ({centre[0]:.6g}, {centre[1]:.6g})",
+    ] + [f"probe {name}: displacement ({u[0]:.6g}, {u[1]:.6g})" for name, u in results.get("probes", {}).items()] + [
         f"contact: active length {contact['active_length']:.4g} of {contact['boundary_length']:.4g}, "
-        f"force on disk ({contact['force_on_body1'][0]:.4g}, {contact['force_on_body1'][1]:.6g}), "
+        f"force on body 1 ({contact['force_on_body1'][0]:.4g}, {contact['force_on_body1'][1]:.6g}), "
         f"balance error {contact['force_balance_error']:.1e}, max pressure {contact['max_pressure']:.4g}",
-        f"cut elements: min ratio {cut['min_ratio_body1']:.2e} (disk), {cut['min_ratio_body2']:.2e} (slab); "
+        f"cut elements: min ratio {cut['min_ratio_body1']:.2e} (body 1), {cut['min_ratio_body2']:.2e} (body 2); "
         f"stabilization {cut['stabilization']}: cases a/b/c = {cut['case_a']}/{cut['case_b']}/{cut['case_c']}, "
         f"sliver elements dropped {cut.get('dropped_body1', 0)} + {cut.get('dropped_body2', 0)}",
     ]

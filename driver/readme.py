@@ -273,7 +273,8 @@ SCRIPT_TITLES = (
     ("contact_foundation_2d", "one body on a rigid foundation, body-fitted mesh (2D)"),
 )
 
-KIND_NAMES = {"float": "number", "int": "integer", "str": "string", "bool": "boolean", "vector": "numbers"}
+KIND_NAMES = {"float": "number", "int": "integer", "str": "string", "bool": "boolean", "vector": "numbers",
+              "tree": "table"}
 
 INTRO = """# Scene reference
 

@@ -225,8 +225,9 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
             {k: v for k, v in scene.items() if not k.startswith("_")}, indent=2, default=str))
         mesh_file = module.prepare_mesh(scene, staging, run_command)
         args = module.freefem_args(scene, mesh_file=mesh_file)
+        entry = write_scene_module(scene, module, script, staging)
         # -Dmacro flags must follow the script name; everything else is -key value.
-        command = [binary, "-nw", "-v", "0", str(script)] + args + ["-outdir", str(staging)]
+        command = [binary, "-nw", "-v", "0", str(entry)] + args + ["-outdir", str(staging)]
         # FreeFEM's output is block-buffered on a pipe: line-buffer it for progress.
         stdbuf = shutil.which("stdbuf")
         launch = [stdbuf, "-oL", "-eL"] + command if stdbuf else command
@@ -266,6 +267,23 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
             reason = str(error.args[0]) if error.args else type(error).__name__
         keep_failure(staging, final, error, reason)
         raise error from None
+
+
+def write_scene_module(scene, module, script, staging):
+    """The script FreeFEM runs: for a scene with a scene module (docs/scene-modules.md),
+    run.edp in the run folder, which includes scene.idp (beside it) and then the solver
+    (from the repository root, FreeFEM's working folder); else the solver itself."""
+    make = getattr(module, "scene_module", None)
+    if make is None:
+        return script
+    (staging / "scene.idp").write_text(make(scene))
+    script = script.resolve()
+    name = script.relative_to(REPO).as_posix() if script.is_relative_to(REPO) else str(script)
+    if '"' in name or "\n" in name:
+        raise SceneError(f"{script}: a script path for FreeFEM's include must not hold quotes or line breaks")
+    (staging / "run.edp").write_text(f'include "scene.idp"   // the scene (written by the driver)\n'
+                                     f'include "{name}"\n')
+    return staging / "run.edp"
 
 
 def keep_failure(staging, final, error, reason):

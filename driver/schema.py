@@ -14,7 +14,8 @@ class Field:
     """One scalar or vector entry of a scene table."""
 
     def __init__(self, kind, default=REQUIRED, check=None, choices=None, length=None, doc="", unit=""):
-        self.kind = kind            # "float", "int", "str", "bool", "vector"
+        self.kind = kind            # "float", "int", "str", "bool", "vector"; "tree": a table or list
+                                    # checked by its own reader (shapes, supports: driver/scene_module.py)
         self.default = default
         self.check = check          # callable(value) -> error text or None; its .description reads as a range
         self.choices = choices
@@ -39,6 +40,9 @@ class Field:
         elif kind == "bool":
             if not isinstance(value, bool):
                 raise SceneError(f"{where}: expected true or false, got {type_name(value)} {value!r}")
+        elif kind == "tree":
+            if not isinstance(value, (dict, list, str)):
+                raise SceneError(f"{where}: expected a table, a list of tables or a name, got {type_name(value)}")
         elif kind == "vector":
             if not isinstance(value, list) or any(
                 isinstance(v, bool) or not isinstance(v, (int, float)) for v in value

@@ -8,7 +8,7 @@ DISK = "cases/disk_on_slab.toml"
 
 
 def centre_y(run):
-    return run.results["disk"]["centre_displacement"][1]
+    return run.results["probes"]["centre"][1]
 
 
 @pytest.mark.parametrize("degree", [1, 2])

@@ -34,7 +34,7 @@ def test_fitted_solver_balances_the_disk(fitted):
     r = json.loads((fitted / "results.json").read_text())
     assert r["status"] == "converged"
     assert r["contact"]["force_balance_error"] < 1e-6
-    assert -0.021 < r["disk"]["centre_displacement"][1] < -0.017
+    assert -0.021 < r["probes"]["centre"][1] < -0.017
 
 
 def test_crosscheck_against_itself_and_a_fictitious_domain_run(fitted, tmp_path):

@@ -105,7 +105,7 @@ CONVERGING = [("gamma0_tiny", 1e-6), ("gamma0_huge", 1e-6), ("soft_disk", 1e-4),
 def test_hard_scene_converges_bounded(tmp_path, name, balance):
     r = converged(tmp_path / "run", f"{HARD}/{name}.toml")
     c = r["contact"]
-    uy = r["disk"]["centre_displacement"][1]
+    uy = r["probes"]["centre"][1]
     print(f"{name}: {r['newton']['iterations']} Newton iterations, penetration {c['max_penetration']:.3g}, "
           f"balance {c['force_balance_error']:.2g}, centre u_y {uy:.5g}")
     assert r["newton"]["iterations"] <= 12

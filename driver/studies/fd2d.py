@@ -65,7 +65,7 @@ def run_with_errors(ref, overrides, labels):
                case_a=results["cut"]["case_a"], case_b=results["cut"]["case_b"],
                case_c=results["cut"]["case_c"],
                dropped=results["cut"].get("dropped_body1", 0) + results["cut"].get("dropped_body2", 0),
-               centre_uy=results["disk"]["centre_displacement"][1])
+               centre_uy=results["probes"]["centre"][1])
     return out
 
 
@@ -340,13 +340,13 @@ def pressure_profiles():
                 raise DriverError(f"run NX={nx} failed: {row['message']}")
             s = pd.read_csv(folder / "contact_pressure.csv").sort_values("x")
             s = s[s.y < -0.2]
-            ax.plot(s.x, -s.pressure, ".-", ms=3, lw=0.8,
+            ax.plot(s.x, s.pressure, ".-", ms=3, lw=0.8,
                     label=f"NX = {nx}: force {results['contact']['force_on_body1'][1]:.6f}")
         ax.set_xlabel("x on the disk boundary (lower part)")
         ax.set_title(f"stabilization = {stab}")
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8)
-    axes[0].set_ylabel("contact pressure  -sigma_n")
+    axes[0].set_ylabel("contact pressure (Nitsche multiplier, > 0 in compression)")
     fig.suptitle("disk on slab, P2, theta = -1, gamma0 = 1/200 (make fd2d-study)")
     fig.tight_layout()
     fig.savefig(PLOTS_DIR / "disk_on_slab_pressure.png", dpi=110)

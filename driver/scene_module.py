@@ -1,0 +1,304 @@
+"""The scene module of a two-body run: bodies, supports, loads and probes as FreeFEM code.
+
+The contract (every name the module defines) is docs/scene-modules.md. This
+module reads the scene's bodies (a shape tree, or the legacy shapes "disk",
+"ball" and "slab"), their `hold` and `load` lists and the `probe` list, checks
+them against the box (a body outside the box, bodies that overlap at the start, a
+probe outside its body: one SceneError each) and writes the module text.
+"""
+
+import math
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from driver.errors import SceneError
+from driver.geometry import Boolean, Disk, HalfSpace, fmt, placed_measure, read_shape, sample_grid
+
+FACES = {"ymin": 1, "xmax": 2, "ymax": 3, "xmin": 4, "zmin": 5, "zmax": 6}
+COMPONENTS = ("x", "y", "z")
+# gmsh's .geo language can run programs and write files: such commands are refused.
+GEO_REFUSED = ("system", "systemcall", "nonblockingsystemcall", "onelabrun", "include", "merge", "save",
+               "print", "printf", "plugin", "createdir", "sleep", "exit", "abort", "setname")
+
+
+def box_of(scene, dim):
+    geo = scene["geometry"]
+    return [(geo[f"{c}min"], geo[f"{c}max"]) for c in COMPONENTS[:dim]]
+
+
+def legacy_shape(body, dim, key):
+    """The shapes of the reference scenes, written with a string shape and its keys."""
+    if body["shape"] in ("disk", "ball"):
+        return Disk(dim, None, None, body["centre"], body["radius"])
+    normal = [0.0] * dim
+    normal[-1] = 1.0
+    point = [0.0] * dim
+    point[-1] = body["top"]
+    slab = HalfSpace(dim, None, None, point, normal)
+    line = body.get("bottom_line") or []
+    if not line:
+        return slab
+    a, b = line     # above the line y = a + b x
+    return Boolean(dim, None, None, "intersection", [slab, HalfSpace(dim, None, None, [0.0, a], [b, -1.0])])
+
+
+def gmsh_outline(data, base_dir, where):
+    """Closed loops of a gmsh geometry (.geo, meshed in 1D by gmsh) or of a mesh's boundary
+    lines (.msh), in the plane z = 0; `size` is the mesh size given to gmsh."""
+    import meshio
+
+    name = data.get("file")
+    if not isinstance(name, str) or not name:
+        raise SceneError(f"{where}.file: required (a .geo or .msh file, relative to the scene file)")
+    path = (Path(base_dir) / name).resolve()
+    if path.suffix not in (".geo", ".msh") or not path.is_file():
+        raise SceneError(f"{where}.file: {name!r} is not a .geo or .msh file next to the scene")
+    size = data.get("size", 0.02)
+    if isinstance(size, bool) or not isinstance(size, (int, float)) or not 0 < size < 1e6:
+        raise SceneError(f"{where}.size: must be a number > 0, got {size!r}")
+    with tempfile.TemporaryDirectory(prefix="fdcontact-gmsh-") as tmp:
+        if path.suffix == ".geo":
+            try:
+                text = path.read_text(encoding="utf-8")
+            except (UnicodeDecodeError, OSError) as exc:
+                raise SceneError(f"{where}.file: cannot read {name!r} as text ({exc})") from None
+            words = {w.lower() for w in "".join(c if c.isalnum() else " " for c in text).split()}
+            refused = sorted(words & set(GEO_REFUSED))
+            if refused:
+                raise SceneError(f"{where}.file: {name!r} uses {', '.join(refused)}: commands that run programs "
+                                 f"or touch files are refused in scene geometry")
+            gmsh = shutil.which("gmsh")
+            if gmsh is None:
+                raise SceneError(f"{where}: gmsh not found (run 'make setup')")
+            out = Path(tmp) / "outline.msh"
+            proc = subprocess.run([gmsh, str(path), "-1", "-clmax", repr(float(size)), "-format", "msh2",
+                                   "-o", str(out)], cwd=tmp, capture_output=True, text=True)
+            if proc.returncode != 0 or not out.is_file():
+                tail = (proc.stdout + proc.stderr).strip().splitlines()[-3:]
+                raise SceneError(f"{where}.file: gmsh could not mesh {name!r}: {' '.join(tail)}")
+            mesh_path = out
+        else:
+            mesh_path = path
+        try:
+            mesh = meshio.read(mesh_path)
+        except Exception as exc:   # meshio raises many types on a malformed file
+            raise SceneError(f"{where}.file: cannot read the mesh {name!r} ({type(exc).__name__})") from None
+    lines = [c.data for c in mesh.cells if c.type == "line"]
+    if not lines:
+        raise SceneError(f"{where}.file: {name!r} has no boundary lines")
+    if np.abs(mesh.points[:, 2:]).max(initial=0.0) > 1e-12:
+        raise SceneError(f"{where}.file: the outline must lie in the plane z = 0")
+    return chain_loops(np.vstack(lines), mesh.points[:, :2], f"{where}.file")
+
+
+def chain_loops(edges, points, where):
+    """Order boundary edges into closed loops of points."""
+    neighbours = {}
+    for a, b in edges:
+        if a == b:
+            continue
+        neighbours.setdefault(int(a), []).append(int(b))
+        neighbours.setdefault(int(b), []).append(int(a))
+    if any(len(n) != 2 for n in neighbours.values()):
+        raise SceneError(f"{where}: the outline is not made of closed curves (a point ends or joins >2 lines)")
+    loops, seen = [], set()
+    for start in sorted(neighbours):
+        if start in seen:
+            continue
+        loop, prev, cur = [start], None, start
+        seen.add(start)
+        while True:
+            nxt = [n for n in neighbours[cur] if n != prev]
+            nxt = nxt[0] if nxt else neighbours[cur][0]
+            if nxt == start:
+                break
+            loop.append(nxt)
+            seen.add(nxt)
+            prev, cur = cur, nxt
+        loops.append([tuple(map(float, points[i])) for i in loop])
+    return loops
+
+
+class Bodies:
+    """The two bodies of a scene, their supports, loads, probes and exact measures."""
+
+    def __init__(self, scene, dim, source, base_dir):
+        self.dim = dim
+        self.box = box_of(scene, dim)
+        self.shapes, self.holds, self.loads = [], [], []
+        for i in (1, 2):
+            body = scene[f"body{i}"]
+            where = f"{source}: key 'body{i}.shape'"
+            shape = (legacy_shape(body, dim, f"body{i}") if isinstance(body["shape"], str)
+                     else read_shape(body["shape"], dim, where, base_dir, gmsh_outline))
+            self.shapes.append(shape)
+            self.holds.append([self.boundary_part(h, f"{source}: key 'body{i}.hold.{n}'", "displacement", base_dir)
+                               for n, h in enumerate(body.get("hold", []))])
+            self.loads.append([self.boundary_part(h, f"{source}: key 'body{i}.load.{n}'", "traction", base_dir)
+                               for n, h in enumerate(body.get("load", []))])
+        self.probes = [self.probe(p, f"{source}: key 'probe.{n}'") for n, p in enumerate(scene.get("probe", []))]
+        names = [p["name"] for p in self.probes]
+        if len(set(names)) != len(names):
+            raise SceneError(f"{source}: key 'probe': two probes share a name")
+        self.check_placement(source)
+        self.measures = [placed_measure(s, self.box) for s in self.shapes]
+
+    def boundary_part(self, part, where, value_key, base_dir):
+        """A hold or load: on a box face or on the part of the cut boundary inside a region."""
+        if ("face" in part) == ("region" in part):
+            raise SceneError(f"{where}: give either face = \"xmin\" | \"xmax\" | ... or region = {{ shape }}")
+        value = part.get(value_key, [0.0] * self.dim if value_key == "displacement" else None)
+        if (not isinstance(value, list) or len(value) != self.dim
+                or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
+                       for v in value)):
+            raise SceneError(f"{where}.{value_key}: expected {self.dim} finite numbers, got {value!r}")
+        out = {value_key: [float(v) for v in value]}
+        comps = part.get("components", "".join(COMPONENTS[:self.dim]))
+        if (not isinstance(comps, str) or not comps or any(c not in COMPONENTS[:self.dim] for c in comps)
+                or len(set(comps)) != len(comps)):
+            raise SceneError(f"{where}.components: letters among {''.join(COMPONENTS[:self.dim])}, got {comps!r}")
+        if "face" in part:
+            faces = [f for f, label in FACES.items() if label <= 2 * self.dim]
+            if part["face"] not in faces:
+                raise SceneError(f"{where}.face: must be one of {', '.join(faces)}, got {part['face']!r}")
+            out["face"] = FACES[part["face"]]
+            out["components"] = comps
+        else:
+            if comps != "".join(COMPONENTS[:self.dim]):
+                raise SceneError(f"{where}.components: a cut-boundary hold holds every component")
+            out["region"] = read_shape(part["region"], self.dim, f"{where}.region", base_dir, gmsh_outline)
+        extra = set(part) - {"face", "region", value_key, "components"}
+        if extra:
+            raise SceneError(f"{where}: unknown key(s) {', '.join(sorted(extra))}")
+        return out
+
+    def probe(self, probe, where):
+        name, point, body = probe.get("name"), probe.get("point"), probe.get("body", 1)
+        if not isinstance(name, str) or not name or not all(c.isalnum() or c in "_-" for c in name) or len(name) > 40:
+            raise SceneError(f"{where}.name: 1-40 letters, digits, '_' or '-', got {name!r}")
+        if (not isinstance(point, list) or len(point) != self.dim
+                or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in point)):
+            raise SceneError(f"{where}.point: expected {self.dim} numbers, got {point!r}")
+        if body not in (1, 2):
+            raise SceneError(f"{where}.body: must be 1 or 2, got {body!r}")
+        if set(probe) - {"name", "point", "body"}:
+            raise SceneError(f"{where}: unknown key(s) {', '.join(sorted(set(probe) - {'name', 'point', 'body'}))}")
+        phi = float(self.shapes[body - 1].phi(*[np.array([float(v)]) for v in point])[0])
+        if phi >= 0:
+            raise SceneError(f"{where}.point: {point} is not inside body {body}")
+        return {"name": name, "point": [float(v) for v in point], "body": body}
+
+    def check_placement(self, source):
+        n = 401 if self.dim == 2 else 61
+        grid = sample_grid(self.box, self.dim, n)
+        phis = [s.phi(*grid) for s in self.shapes]
+        size = max(hi - lo for lo, hi in self.box)
+        for i, phi in enumerate(phis, start=1):
+            if not np.all(np.isfinite(phi)):
+                raise SceneError(f"{source}: key 'body{i}.shape': the level set is not finite everywhere in the box")
+            if np.count_nonzero(phi < 0) < 4:
+                raise SceneError(f"{source}: key 'body{i}.shape': the body misses the box "
+                                 f"(no part of it inside {self.box})")
+            if np.count_nonzero(phi >= 0) == 0:
+                raise SceneError(f"{source}: key 'body{i}.shape': the body fills the whole box")
+        both = np.maximum(phis[0], phis[1])
+        k = int(np.argmin(both))
+        if both.flat[k] < -1e-9 * size:
+            where = ", ".join(f"{g.flat[k]:.4g}" for g in grid)
+            raise SceneError(f"{source}: key 'body1.shape': the bodies overlap at the start "
+                             f"(both contain ({where}), depth {-both.flat[k]:.3g})")
+
+    # ------------------------------------------------------------ module text
+
+    def module_text(self, title):
+        d = self.dim
+        guard = "fd2dSceneIncluded" if d == 2 else "fd3dSceneIncluded"
+        point = "px, py" if d == 2 else "px, py, pz"
+        coords = point.split(", ")
+        lines = [f"IFMACRO(!{guard})", f"macro {guard}()1 // included once",
+                 f"// Scene module ({title}), written by the driver: docs/scene-modules.md lists every name.",
+                 "// Generated from the scene file; edit the scene, not this file."]
+        for i, shape in enumerate(self.shapes, start=1):
+            lines.append(f"macro phi{i}At({point}) {shape.code(*coords)} //")
+        for i in (1, 2):
+            lines += self.face_arrays(i)
+            lines += self.cut_macros(i, "hold", "displacement", "U", point, coords)
+            lines += self.cut_macros(i, "load", "traction", "T", point, coords)
+        lines.append(f"int probeCount = {len(self.probes)};")
+        for c in COMPONENTS[:d]:
+            values = ", ".join(fmt(p["point"][COMPONENTS.index(c)]) for p in self.probes) or "0."
+            lines.append(f"real[int] probe{c.upper()} = [{values}];")
+        lines.append(f"real[int] probeBody = [{', '.join(str(p['body']) for p in self.probes) or '0'}];")
+        lines.append(f"string[int] probeName({max(len(self.probes), 1)});")
+        for n, p in enumerate(self.probes):
+            lines.append(f"probeName[{n}] = \"{p['name']}\";")
+        for i, m in enumerate(self.measures, start=1):
+            lines.append(f"real exactMeasure{i} = {fmt(m) if m is not None else '-1.'};")
+        lines.append("ENDIFMACRO")
+        return "\n".join(lines) + "\n"
+
+    def face_arrays(self, i):
+        d = self.dim
+        held = {c: [0.0] * 7 for c in COMPONENTS[:d]}
+        value = {c: [0.0] * 7 for c in COMPONENTS[:d]}
+        loaded, traction = [0.0] * 7, {c: [0.0] * 7 for c in COMPONENTS[:d]}
+        for hold in self.holds[i - 1]:
+            if "face" in hold:
+                for c in hold["components"]:
+                    held[c][hold["face"]] = 1.0
+                    value[c][hold["face"]] = hold["displacement"][COMPONENTS.index(c)]
+        for load in self.loads[i - 1]:
+            if "face" in load:
+                loaded[load["face"]] = 1.0
+                for n, c in enumerate(COMPONENTS[:d]):
+                    traction[c][load["face"]] += load["traction"][n]
+
+        def arr(name, values):
+            return f"real[int] {name} = [{', '.join(fmt(v) for v in values)}];"
+
+        out = [arr(f"holdFace{i}{c.upper()}", held[c]) for c in COMPONENTS[:d]]
+        out += [arr(f"holdFace{i}U{c}", value[c]) for c in COMPONENTS[:d]]
+        out.append(arr(f"loadFace{i}", loaded))
+        out += [arr(f"loadFace{i}T{c}", traction[c]) for c in COMPONENTS[:d]]
+        return out
+
+    def cut_macros(self, i, kind, value_key, letter, point, coords):
+        parts = [p for p in (self.holds if kind == "hold" else self.loads)[i - 1] if "region" in p]
+        inside = [f"({p['region'].code(*coords)} < 0)" for p in parts]
+        out = [f"int {kind}CutAny{i} = {1 if parts else 0};",
+               f"macro {kind}Cut{i}({point}) {' || '.join(inside) if inside else '0'} //"]
+        for n, c in enumerate(COMPONENTS[:self.dim]):
+            expr = "0."
+            for p, test in reversed(list(zip(parts, inside))):
+                expr = f"({test} ? {fmt(p[value_key][n])} : {expr})"
+            out.append(f"macro {kind}Cut{i}{letter}{c}({point}) {expr} //")
+        return out
+
+    # ------------------------------------------------------------ facts for the driver
+
+    def floating(self, i):
+        """No support of body i holds every component."""
+        full = "".join(COMPONENTS[:self.dim])
+        return not any("region" in h or h["components"] == full for h in self.holds[i - 1])
+
+
+def legacy_supports(scene, dim):
+    """Supports of the legacy slab: strongly on the box bottom, or Nitsche on its bottom line."""
+    body2 = scene["body2"]
+    if not isinstance(body2["shape"], str) or body2.get("hold"):
+        return
+    line = body2.get("bottom_line") or []
+    if dim == 2 and line:
+        a, b = line
+        s = math.sqrt(1 + b * b)
+        # the slab's bottom piece: nearer the line y = a + b x than the top (as a half-plane)
+        normal = [-b / s, 1 + 1 / s]
+        y0 = (body2["top"] + a / s) / (1 + 1 / s)
+        body2["hold"] = [{"region": {"type": "half_plane", "point": [0.0, y0], "normal": normal},
+                          "displacement": [0.0, 0.0]}]
+    else:
+        body2["hold"] = [{"face": "ymin" if dim == 2 else "zmin", "displacement": [0.0] * dim}]
