@@ -191,7 +191,7 @@ def check(scene, source):
     if fix and not bodies.floating(1):
         raise SceneError(f"{source}: key 'rigid.fix_x_points': body 1 is held by a support; pins are for a "
                          f"floating body 1 (use [])")
-    for px, py in (fix[:2], fix[2:]):
+    for px, py in (fix[:2], fix[2:]) if fix else ():
         if bodies.shapes[0].phi(np.array([px]), np.array([py]))[0] >= 0:
             raise SceneError(f"{source}: key 'rigid.fix_x_points': ({px:g}, {py:g}) is not inside body 1")
     scene["rigid"]["fix_x_points"] = fix
