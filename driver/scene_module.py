@@ -132,23 +132,31 @@ class Bodies:
         self.shapes, self.holds, self.loads = [], [], []
         for i in (1, 2):
             body = scene[f"body{i}"]
-            where = f"{source}: key 'body{i}.shape'"
+            where = f"{source}: key body{i}.shape"
             shape = (legacy_shape(body, dim, f"body{i}") if isinstance(body["shape"], str)
                      else read_shape(body["shape"], dim, where, base_dir, gmsh_outline))
             self.shapes.append(shape)
-            self.holds.append([self.boundary_part(h, f"{source}: key 'body{i}.hold.{n}'", "displacement", base_dir)
+            for kind in ("hold", "load"):
+                if not isinstance(body.get(kind, []), list):
+                    raise SceneError(f"{source}: key body{i}.{kind}: expected a list of tables")
+            self.holds.append([self.boundary_part(h, f"{source}: key body{i}.hold.{n}", "displacement", base_dir)
                                for n, h in enumerate(body.get("hold", []))])
-            self.loads.append([self.boundary_part(h, f"{source}: key 'body{i}.load.{n}'", "traction", base_dir)
+            self.loads.append([self.boundary_part(h, f"{source}: key body{i}.load.{n}", "traction", base_dir)
                                for n, h in enumerate(body.get("load", []))])
-        self.probes = [self.probe(p, f"{source}: key 'probe.{n}'") for n, p in enumerate(scene.get("probe", []))]
+        self.check_placement(source)
+        probes = scene.get("probe", [])
+        if not isinstance(probes, list):
+            raise SceneError(f"{source}: key probe: expected [[probe]] tables")
+        self.probes = [self.probe(p, f"{source}: key probe.{n}") for n, p in enumerate(probes)]
         names = [p["name"] for p in self.probes]
         if len(set(names)) != len(names):
-            raise SceneError(f"{source}: key 'probe': two probes share a name")
-        self.check_placement(source)
+            raise SceneError(f"{source}: key probe: two probes share a name")
         self.measures = [placed_measure(s, self.box) for s in self.shapes]
 
     def boundary_part(self, part, where, value_key, base_dir):
         """A hold or load: on a box face or on the part of the cut boundary inside a region."""
+        if not isinstance(part, dict):
+            raise SceneError(f"{where}: expected a table (face = ... or region = ...)")
         if ("face" in part) == ("region" in part):
             raise SceneError(f"{where}: give either face = \"xmin\" | \"xmax\" | ... or region = {{ shape }}")
         value = part.get(value_key, [0.0] * self.dim if value_key == "displacement" else None)
@@ -177,6 +185,8 @@ class Bodies:
         return out
 
     def probe(self, probe, where):
+        if not isinstance(probe, dict):
+            raise SceneError(f"{where}: expected a table with name, point and body")
         name, point, body = probe.get("name"), probe.get("point"), probe.get("body", 1)
         if not isinstance(name, str) or not name or not all(c.isalnum() or c in "_-" for c in name) or len(name) > 40:
             raise SceneError(f"{where}.name: 1-40 letters, digits, '_' or '-', got {name!r}")
@@ -199,17 +209,17 @@ class Bodies:
         size = max(hi - lo for lo, hi in self.box)
         for i, phi in enumerate(phis, start=1):
             if not np.all(np.isfinite(phi)):
-                raise SceneError(f"{source}: key 'body{i}.shape': the level set is not finite everywhere in the box")
+                raise SceneError(f"{source}: key body{i}.shape: the level set is not finite everywhere in the box")
             if np.count_nonzero(phi < 0) < 4:
-                raise SceneError(f"{source}: key 'body{i}.shape': the body misses the box "
+                raise SceneError(f"{source}: key body{i}.shape: the body misses the box "
                                  f"(no part of it inside {self.box})")
             if np.count_nonzero(phi >= 0) == 0:
-                raise SceneError(f"{source}: key 'body{i}.shape': the body fills the whole box")
+                raise SceneError(f"{source}: key body{i}.shape: the body fills the whole box")
         both = np.maximum(phis[0], phis[1])
         k = int(np.argmin(both))
         if both.flat[k] < -1e-9 * size:
             where = ", ".join(f"{g.flat[k]:.4g}" for g in grid)
-            raise SceneError(f"{source}: key 'body1.shape': the bodies overlap at the start "
+            raise SceneError(f"{source}: key body1.shape: the bodies overlap at the start "
                              f"(both contain ({where}), depth {-both.flat[k]:.3g})")
 
     # ------------------------------------------------------------ module text

@@ -1,0 +1,311 @@
+"""Scenes posed in the scene file (2D): shapes, supports, loads, probes, the projection."""
+
+import math
+import textwrap
+
+import numpy as np
+import pytest
+
+from driver.errors import SceneError
+from driver.geometry import read_shape
+from tests.conftest import REPO, run_cli
+
+QUIET = ("output.vtu=false", "output.estimators=false")
+
+
+def scene_file(tmp_path, text, name="scene.toml"):
+    path = tmp_path / name
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+BODY_ON_SLAB = """
+[scene]
+name = "body_on_slab"
+script = "fd_contact_2d"
+[mesh]
+nx = {nx}
+[body1]
+E = 1.0
+nu = 0.3
+body_force = [0.0, -0.1]
+shape = {shape}
+[body2]
+shape = "slab"
+top = -0.25
+E = 1.0
+nu = 0.3
+[rigid]
+fix_x_points = [0.0, 0.0, 0.0, -0.1]
+[method]
+degree = 1
+"""
+
+# Each shape rests on the slab {y < -0.25} (lowest point at y = -0.25), holds (0, 0)
+# and (0, -0.1), and has a known area.
+SHAPES = {
+    "disk": ('{ type = "disk", centre = [0.0, 0.0], radius = 0.25 }', math.pi * 0.25 ** 2),
+    "ellipse": ('{ type = "ellipse", centre = [0.0, -0.1], semi_axes = [0.3, 0.15] }', math.pi * 0.3 * 0.15),
+    "rounded_box": ('{ type = "box", min = [-0.2, -0.25], max = [0.2, 0.15], corner_radius = 0.08 }',
+                    0.4 * 0.4 - (4 - math.pi) * 0.08 ** 2),
+    "polygon": ('{ type = "polygon", vertices = [[-0.2, -0.25], [0.25, -0.25], [0.25, 0.1], [0.05, 0.1], '
+                '[0.05, 0.2], [-0.2, 0.2]] }', 0.45 * 0.35 + 0.25 * 0.1),
+    "expression": ('{ type = "expression", phi = "sqrt(x^2 + y^2) - 0.25" }', math.pi * 0.25 ** 2),
+    "rotated_ellipse": ('{ type = "ellipse", centre = [0.0, 0.0], semi_axes = [0.3, 0.15], rotate = 90.0, '
+                        'translate = [0.0, 0.05] }', math.pi * 0.3 * 0.15),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SHAPES))
+def test_area_of_each_primitive_against_its_exact_value(tmp_path, run_scene, name):
+    """The P1 level-set polygon's area converges to the exact one at O(h^2): at h = 1/100
+    every shape is within 1e-3 (measured 2.7e-4 for the disk, 5.5e-4 for the polygon's
+    corners); the driver's exact value reaches results.json (not for an expression)."""
+    shape, exact = SHAPES[name]
+    path = scene_file(tmp_path, BODY_ON_SLAB.format(nx=100, shape=shape))
+    run = run_scene(path, *QUIET)
+    areas = run.results["areas"]
+    if name == "expression":
+        assert "body1_exact" not in areas
+    else:
+        assert areas["body1_exact"] == pytest.approx(exact, rel=1e-12)
+    assert abs(areas["body1"] - exact) / exact < 1e-3
+    assert areas["body2_exact"] == pytest.approx(0.25, rel=1e-12)
+    assert run.results["balance"]["balance_error"] < 1e-6
+
+
+def test_boolean_operations_of_shapes():
+    disk = {"type": "disk", "centre": [0.0, 0.0], "radius": 0.3}
+    box = {"type": "box", "min": [0.0, -1.0], "max": [1.0, 1.0]}
+    pts = [np.array([-0.2, 0.2, 0.5, 0.1]), np.array([0.0, 0.0, 0.0, 0.0])]
+    inside = {op: read_shape({"type": op, "of": [disk, box]}, 2, "t").phi(*pts) < 0
+              for op in ("union", "intersection", "difference")}
+    assert inside["union"].tolist() == [True, True, True, True]
+    assert inside["intersection"].tolist() == [False, True, False, True]
+    assert inside["difference"].tolist() == [True, False, False, False]
+
+
+@pytest.mark.parametrize("text", ["__import__('os').system('x')", "x.real", "open('f')", "y; z", "q + 1",
+                                  "sqrt(x, y)", "'a'"])
+def test_expression_accepts_only_numbers_coordinates_and_functions(text):
+    with pytest.raises(SceneError):
+        read_shape({"type": "expression", "phi": text}, 2, "t")
+
+
+def test_expression_is_rebuilt_not_copied():
+    shape = read_shape({"type": "expression", "phi": "x^2 + 2*y - atan2(y, x)"}, 2, "t")
+    code = shape.code("px", "py")
+    assert code == "((((px) ^ (2.0)) + ((2.0) * (py))) - atan2((py), (px)))"
+
+
+ELLIPSE_BELOW = """
+[scene]
+name = "disk_on_ellipse"
+script = "fd_contact_2d"
+[mesh]
+nx = 60
+[body1]
+E = 1.0
+nu = 0.3
+body_force = [0.0, -0.1]
+shape = { type = "disk", centre = [0.12, 0.12], radius = 0.25 }
+[body2]
+E = 1.0
+nu = 0.3
+hold = [{ face = "ymin" }]
+[body2.shape]
+type = "union"
+of = [{ type = "ellipse", centre = [0.0, -0.3], semi_axes = [0.4, 0.15] },
+      { type = "box", min = [-0.6, -0.6], max = [0.6, -0.3] }]
+[rigid]
+fix_x_points = [0.12, 0.12, 0.12, 0.2]
+[method]
+degree = 1
+[solver]
+allow_unbalanced = true      # the tilted contact pushes the disk sideways into its pins
+"""
+
+
+def ellipse_closest_point(px, py, cx=0.0, cy=-0.3, a=0.4, b=0.15):
+    """Closest point of the ellipse to (px, py): dense angles, then Newton on the angle."""
+    t = np.linspace(-np.pi, np.pi, 20001)
+    k = np.argmin((cx + a * np.cos(t) - px) ** 2 + (cy + b * np.sin(t) - py) ** 2)
+    s = t[k]
+    for _ in range(50):
+        ex, ey = cx + a * np.cos(s) - px, cy + b * np.sin(s) - py
+        dx, dy = -a * np.sin(s), b * np.cos(s)
+        f = ex * dx + ey * dy
+        df = dx * dx + dy * dy + ex * (-a * np.cos(s)) + ey * (-b * np.sin(s))
+        s -= f / df
+    return cx + a * np.cos(s), cy + b * np.sin(s)
+
+
+def gradient_foot_point(px, py, cx=0.0, cy=-0.3, a=0.4, b=0.15):
+    """x - phi grad(phi)/|grad phi|^2 iterated (the projection the solver used before)."""
+    m = min(a, b)
+    qx, qy = px, py
+    for _ in range(20):
+        r = math.hypot((qx - cx) / a, (qy - cy) / b)
+        phi = m * (r - 1)
+        gx, gy = m * (qx - cx) / (a * a * r), m * (qy - cy) / (b * b * r)
+        g2 = gx * gx + gy * gy
+        qx, qy = qx - phi * gx / g2, qy - phi * gy / g2
+    return qx, qy
+
+
+def test_contact_projection_is_the_closest_point_on_an_ellipse(tmp_path, run_scene):
+    """Pi(x) (contact_pressure.csv proj_x, proj_y) against a closest-point computation on
+    the exact ellipse, for the active points: measured max 2e-13; the gradient foot
+    point x - phi grad phi/|grad phi|^2 is off by up to about 1e-5 there."""
+    run = run_scene(scene_file(tmp_path, ELLIPSE_BELOW), "output.vtu=false")
+    s = run.contact_samples()
+    act = s[s.active > 0.5]
+    assert len(act) > 5
+    exact = np.array([ellipse_closest_point(x, y) for x, y in zip(act.x, act.y)])
+    foot = np.array([gradient_foot_point(x, y) for x, y in zip(act.x, act.y)])
+    ours = np.column_stack([act.proj_x, act.proj_y])
+    assert np.abs(ours - exact).max() < 1e-9
+    assert np.abs(foot - exact).max() > 1e-7     # the old projection was measurably off
+
+
+PUNCH_CUT_HOLD = """
+[scene]
+name = "punch_cut_hold"
+script = "fd_contact_2d"
+[mesh]
+nx = 61
+[body1]
+E = 1.0
+nu = 0.3
+body_force = [0.0, 0.0]
+shape = { type = "box", min = [-0.15, 0.0], max = [0.15, 0.4], corner_radius = 0.05 }
+hold = [{ region = { type = "half_plane", point = [0.0, 0.38], normal = [0.0, -1.0] }, displacement = [0.0, -0.005] }]
+[body2]
+shape = { type = "half_plane", point = [0.0, 0.0], normal = [0.0, 1.0] }
+E = 1.0
+nu = 0.3
+hold = [{ face = "ymin" }]
+[[probe]]
+name = "top"
+point = [0.0, 0.399]
+[method]
+degree = 2
+gamma0 = 1.0
+"""
+
+
+def test_punch_held_on_a_box_face_by_a_prescribed_displacement(run_scene):
+    """cases/punch.toml: the top face moves by exactly -0.005 (strong), the reaction of that
+    support balances the contact force (no body force), the punch is not floating."""
+    run = run_scene("cases/punch.toml", *QUIET)
+    r = run.results
+    assert r["probes"]["punch_top"][1] == pytest.approx(-0.005, abs=2e-5)
+    assert -0.005 < r["probes"]["punch_bottom"][1] < r["probes"]["slab_below"][1] < 0
+    support = r["supports"]["body1"]
+    assert support["floating"] == 0
+    force = r["contact"]["force_on_body1"]
+    assert force[1] > 0
+    assert support["reaction"][1] == pytest.approx(-force[1], rel=1e-8)
+    assert r["supports"]["body2"]["reaction"][1] == pytest.approx(force[1], rel=1e-6)
+    assert r["balance"]["balance_error"] < 1e-8
+
+
+def test_punch_held_by_nitsche_on_a_cut_part(tmp_path, run_scene):
+    """The same punch held on its top edge inside a region (a Nitsche hold): the top
+    follows u_D = -0.005 to the Nitsche consistency error, reactions balance."""
+    run = run_scene(scene_file(tmp_path, PUNCH_CUT_HOLD), *QUIET)
+    r = run.results
+    assert r["probes"]["top"][1] == pytest.approx(-0.005, abs=5e-5)
+    assert r["supports"]["body1"]["held_cut_boundary"] == 1
+    force = r["contact"]["force_on_body1"][1]
+    assert force > 0
+    assert r["supports"]["body1"]["reaction"][1] == pytest.approx(-force, rel=1e-7)
+
+
+def test_traction_on_a_box_face_and_on_a_cut_part(tmp_path, run_scene):
+    """A traction (0, -q) on the punch's top face (box face ymax, width 0.3 inside the
+    body) is carried by the contact: force = q 0.3; on the upper cut boundary of a disk
+    (above y = 0.1, an arc of length r (pi - 2 asin 0.4)): force = q times that length."""
+    q = 0.01
+    face = run_scene("cases/punch.toml", *QUIET, "body1.hold=[]",
+                     f"body1.load=[{{ face = \"ymax\", traction = [0.0, {-q}] }}]",
+                     "rigid.fix_x_points=[0.0, 0.3, 0.0, 0.4]")
+    assert face.results["contact"]["force_on_body1"][1] == pytest.approx(q * 0.3, rel=1e-6)
+    cut = run_scene("cases/disk_on_slab.toml", *QUIET, "mesh.nx=80", "body1.body_force=[0.0, 0.0]",
+                    f"body1.load=[{{ region = {{ type = \"half_plane\", point = [0.0, 0.1], normal = [0.0, -1.0] }}, "
+                    f"traction = [0.0, {-q}] }}]")
+    arc = 0.25 * (math.pi - 2 * math.asin(0.4))
+    assert cut.results["contact"]["force_on_body1"][1] == pytest.approx(q * arc, rel=2e-4)
+    assert cut.results["balance"]["balance_error"] < 1e-6
+
+
+def test_ring_reports_its_probes_and_exact_area(run_scene):
+    run = run_scene("cases/ring_on_slab.toml", *QUIET, "mesh.nx=60")
+    r = run.results
+    assert set(r["probes"]) == {"ring_bottom", "ring_top"}
+    assert r["areas"]["body1_exact"] == pytest.approx(math.pi * (0.25 ** 2 - 0.15 ** 2), rel=1e-12)
+    assert abs(r["areas"]["body1"] / r["areas"]["body1_exact"] - 1) < 1e-3
+    assert r["probes"]["ring_top"][1] < r["probes"]["ring_bottom"][1] < 0    # the ring is squeezed
+
+
+def test_hertz_cylinders_on_a_coarse_adaptive_run(run_scene):
+    """cases/hertz_cylinders.toml with three adaptation steps (the shipped scene uses four):
+    half-width within 5 % of Hertz's a, total contact force within 1e-6 of P, pressure
+    within 10 % (relative L2 over the zone; shipped scene: 3.2 %)."""
+    run = run_scene("cases/hertz_cylinders.toml", "adapt.steps=3", "output.vtu=false")
+    p_total, radius = 0.001, 1 / (1 / 0.25 + 1 / 0.75)
+    e_star = 1 / (2 * (1 - 0.3 ** 2))
+    a = math.sqrt(4 * p_total * radius / (math.pi * e_star))
+    p0 = 2 * p_total / (math.pi * a)
+    x0, x1 = run.results["contact"]["active_extent"][:2]
+    assert abs((x1 - x0) / 2 - a) / a < 0.05
+    assert abs(run.results["contact"]["force_on_body1"][1] - p_total) < 1e-6
+    s = run.contact_samples()
+    zone = s[(s.x.abs() < a) & (s.y < 0.05)]
+    hertz = p0 * np.sqrt(1 - zone.x ** 2 / a ** 2)
+    rel = math.sqrt(np.sum(zone.weight * (zone.pressure - hertz) ** 2) / np.sum(zone.weight * hertz ** 2))
+    assert rel < 0.10
+
+
+def test_gmsh_outline_body(run_scene):
+    run = run_scene("cases/cam_on_slab.toml", *QUIET, "mesh.nx=50")
+    assert run.results["areas"]["body1_exact"] > 0.15
+    assert abs(run.results["areas"]["body1"] / run.results["areas"]["body1_exact"] - 1) < 2e-3
+
+
+def test_default_scene_module_is_the_generated_one():
+    """freefem/lib/fd2d/scene_default.idp (direct runs) is what the driver writes for
+    cases/disk_on_slab.toml."""
+    proc = run_cli("scene-module", "cases/disk_on_slab.toml")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout == (REPO / "freefem/lib/fd2d/scene_default.idp").read_text()
+
+
+BAD = [
+    ('body1.shape={ type = "star", radius = 0.2 }', "unknown shape 'star'"),
+    ('body1.shape={ type = "disk", centre = [0.0, 0.0], radius = -0.1 }', "radius: must be a number > 0"),
+    ('body1.shape={ type = "disk", centre = [3.0, 0.0], radius = 0.1 }', "misses the box"),
+    ('body1.shape={ type = "disk", centre = [0.0, -0.1], radius = 0.25 }', "overlap at the start"),
+    ('body1.shape={ type = "box", min = [0.0, 0.0], max = [0.2, 0.1], corner_radius = 0.06 }', "corner_radius"),
+    ('body1.shape={ type = "expression", phi = "__import__(1)" }', "are allowed"),
+    ('probe=[{ name = "p", point = [0.4, 0.4] }]', "is not inside body 1"),
+    ('body2.hold=[{ face = "top" }]', "face: must be one of"),
+]
+
+
+@pytest.mark.parametrize("override,message", BAD)
+def test_bad_scene_geometry_gets_one_line_and_exit_2(tmp_path, override, message):
+    proc = run_cli("run", "cases/ring_on_slab.toml", "--set", override, "--out", str(tmp_path / "r"))
+    assert proc.returncode == 2, proc.stderr
+    assert message in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "r").exists()
+
+
+def test_gmsh_geometry_that_runs_programs_is_refused(tmp_path):
+    (tmp_path / "evil.geo").write_text('SystemCall "touch PWNED";\nPoint(1) = {0, 0, 0};\n')
+    path = scene_file(tmp_path, BODY_ON_SLAB.format(nx=20, shape='{ type = "gmsh", file = "evil.geo" }'))
+    proc = run_cli("run", str(path), "--out", str(tmp_path / "r"))
+    assert proc.returncode == 2
+    assert "refused" in proc.stderr
+    assert not (tmp_path / "PWNED").exists() and not (REPO / "PWNED").exists()
