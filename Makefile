@@ -89,6 +89,13 @@ bench: setup
 # within 0.16 of it; FD3D_REFERENCE_* in driver/studies/fd3d.py; computed once into
 # runs/reference/: 294k DOFs, 26 min, 16.6 GiB peak), cost against DOFs, the centre-cut von Mises figure; then the
 # estimator-driven tetgen refinement against uniform refinement (fd3d-adaptive).
+# The shipped 2D scenes as a user runs them: results/scenes.csv, results/hertz.csv
+# (the Hertz scene against Hertz's half-width, force and pressure; README table).
+.PHONY: scenes-study
+scenes-study: setup
+	$(PYTHON) -m driver study scenes
+	$(PYTHON) -m driver readme
+
 .PHONY: fd3d-study
 fd3d-study: setup
 	$(PYTHON) -m driver study fd3d-convergence ball-on-slab-figure fd3d-adaptive

@@ -399,6 +399,31 @@ ALLOWED_KEYS = {
 }
 
 
+# One line per shape type for the scene reference (docs/scenes.md, "Shapes").
+SHAPE_DOCS = {
+    "disk": ("2D", "centre = [x, y], radius", "exact signed distance"),
+    "ball": ("3D", "centre = [x, y, z], radius", "exact signed distance"),
+    "ellipse": ("2D", "centre, semi_axes = [a, b]", "min(a, b)(|((x - c)/a, (y - c)/b)| - 1): not a distance"),
+    "ellipsoid": ("3D", "centre, semi_axes = [a, b, c]", "as the ellipse"),
+    "box": ("2D, 3D", "min, max (corners), corner_radius (2D) or edge_radius (3D), default 0",
+            "exact signed distance; the radius is below half the smallest side"),
+    "half_plane": ("2D", "point, normal (outward, any length)", "{(x - point).normal < 0}"),
+    "half_space": ("3D", "point, normal", "as half_plane"),
+    "cylinder": ("3D", "centre, axis, radius, length", "finite, flat ends; exact signed distance"),
+    "polygon": ("2D", "vertices = [[x, y], ...] (at least 3, at most 400 edges)",
+                "exact signed distance to the closed polygon"),
+    "gmsh": ("2D", "file (a .geo or .msh next to the scene), size (mesh size of the outline, default 0.02)",
+             "the closed outline(s) in z = 0 meshed by gmsh, as a polygon; .geo files that run programs "
+             "or write files are refused"),
+    "expression": ("2D, 3D", "phi = \"...\" in x, y (z): numbers, pi, + - * / ^ and sqrt abs exp log sin "
+                   "cos tan atan tanh atan2 min max pow", "any level set (< 0 inside); parsed and rebuilt, "
+                   "never copied"),
+    "union": ("2D, 3D", "of = [shape, ...]", "min of the level sets"),
+    "intersection": ("2D, 3D", "of = [shape, shape, ...]", "max of the level sets"),
+    "difference": ("2D, 3D", "of = [shape, shape, ...]", "the first minus the others"),
+}
+
+
 def read_shape(data, dim, where, base_dir=None, mesher=None):
     """A validated Shape from a scene table (where: 'file: key body1.shape')."""
     if not isinstance(data, dict):

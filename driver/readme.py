@@ -216,7 +216,24 @@ def fd3d_adaptive():
     return markdown_table(pd.DataFrame(rows))
 
 
+def hertz():
+    t = pd.read_csv(RESULTS / "hertz.csv").iloc[0]
+    return markdown_table(pd.DataFrame([{
+        "half-width a (Hertz)": f"{t.a_hertz:.5f}", "measured": f"{t.half_width:.5f}",
+        "error": f"{100 * t.half_width_error:.2f} %", "force - P": f"{t.force_error:.2g}",
+        "pressure vs Hertz (rel. L2)": f"{100 * t.pressure_l2_error:.1f} %", "DOFs": int(t.dofs),
+        "wall": f"{t.wall_s:.0f} s"}]))
+
+
+def scenes_table():
+    t = pd.read_csv(RESULTS / "scenes.csv")
+    t["scene"] = t.case.str.replace("cases/", "", regex=False)
+    return markdown_table(t[["scene", "dofs", "newton_iterations", "force_y", "balance_error", "wall_s"]], digits=3)
+
+
 TABLES = {
+    "hertz": hertz,
+    "scenes": scenes_table,
     "hard_cases": hard_cases,
     "hard_gamma_scaling": hard_gamma_scaling,
     "hard_conditioning": hard_conditioning,
@@ -367,7 +384,43 @@ def scene_reference():
                      field.doc)
             lines.append("| " + " | ".join(markdown_cell(c) for c in cells) + " |")
         parts.append("\n".join(lines) + "\n")
+    parts.append(shapes_reference())
     return "\n".join(parts)
+
+
+SHAPES_INTRO = """## Shapes
+
+`bodyN.shape` (two-body scripts) and every `region` of a hold or load is a shape
+table `{ type = "...", ... }` (written by `driver/geometry.py`, checked there).
+Any shape also takes `translate` (a vector) and `rotate` (degrees: one angle in
+2D, `[about x, about y, about z]` in 3D, applied in that order). A body is the
+part of the box where its level set is negative.
+"""
+
+SUPPORTS_TEXT = """## Supports, loads, probes
+
+- `[[bodyN.hold]]`: `face = "xmin" | "xmax" | "ymin" | "ymax" | "zmin" | "zmax"`
+  holds the body's degrees of freedom on that box face strongly (`displacement`,
+  default zero; `components = "xy"` or a part of it); or `region = { shape }`
+  holds the part of the body's cut boundary inside the region by Nitsche (all
+  components; needs `gamma_scaling` shear or none).
+- `[[bodyN.load]]`: `face = ...` or `region = { shape }` with `traction = [...]`
+  (force per area), on the part of the face or cut boundary inside the body.
+- `[[probe]]`: `name` (letters, digits, `_`, `-`), `point`, `body` (1 or 2,
+  default 1); results.json `probes` gives the displacement there.
+- A body that no hold holds in every component is floating: `rigid.mass_eps`
+  holds its rigid motions (and for body 1 in 2D the pins `rigid.fix_x_points`);
+  the balance gate refuses a run whose load they carry.
+"""
+
+
+def shapes_reference():
+    from driver.geometry import SHAPE_DOCS
+
+    lines = [SHAPES_INTRO, "| type | dimension | keys | level set |", "|---|---|---|---|"]
+    for name, (dims, keys, meaning) in SHAPE_DOCS.items():
+        lines.append("| " + " | ".join(markdown_cell(c) for c in (f"`{name}`", dims, keys, meaning)) + " |")
+    return "\n".join(lines) + "\n\n" + SUPPORTS_TEXT
 
 
 def update():

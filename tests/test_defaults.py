@@ -17,9 +17,8 @@ from tests.conftest import REPO
 DIRECT_ONLY = {
     # output folder and the listing itself; the driver always passes -outdir
     "common": {"outdir", "list_options"},
-    # the Nitsche-Dirichlet bottom line (sent when body2.bottom_line is set), the
-    # adaptation's largest element (defaults to the initial step)
-    "fd_contact_2d": {"slab_bottom_a", "slab_bottom_b", "adapt_hmax"},
+    # the adaptation's largest element (defaults to the initial step)
+    "fd_contact_2d": {"adapt_hmax"},
     # points per interface triangle (default by degree), the centre-cut plane,
     # grading toward the contact point (sent when mesh.grade_h > 0)
     "fd_contact_3d": {"contact_qp", "cut_y", "grade_h", "grade_radius", "grade_slope",

@@ -229,9 +229,8 @@ def test_an_interrupted_run_stops_freefem_and_keeps_no_results(signum, tmp_path)
     (["-nx", "2.5"], "not an integer"),
     (["-theta", "nan"], "not a number"),
     (["-gamma0", "1e999"], "not a finite number"),
-    (["-slab_top", "0.9"], "the slab top misses the box"),
-    (["-slab_top", "0.1"], "the disk overlaps the slab"),
-    (["-disk_cx", "0.4"], "the disk is not inside the box"),
+    (["-fix_ay", "0.9"], "the fixing points fix_a, fix_b must lie inside body 1"),
+    (["-disk_cx", "0.4"], "unknown option '-disk_cx'"),      # the geometry is the scene module's
 ])
 def test_direct_2d_run_refuses_bad_options(args, message):
     proc = run_freefem("fd_contact_2d.edp", *args)

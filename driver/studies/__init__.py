@@ -25,6 +25,7 @@ REGISTRY = {
     "fd3d-adaptive": ("fd3d_estimators", "adaptive_study"),
     "hard-cases": ("hard_cases", "hard_cases"),
     "hard-conditioning": ("hard_cases", "hard_conditioning"),
+    "scenes": ("scenes", "scenes"),
     "bench": ("bench", "bench"),
     "bench-newton": ("bench", "newton_grid"),
 }
