@@ -1,22 +1,31 @@
 """Scenes for freefem/fd_contact_3d.edp: two bodies on one background mesh of a box in 3D.
 
-Body 1 is a ball, body 2 a slab {z < top} of the box, held strongly on the box
-bottom z = zmin. The rigid motions of the floating ball are removed by fixing
-u1_x and u1_y at two points A, B (on a vertical line through the ball:
-translations in x, y and rotations about x, y) and u1_y at a third point C (off
-that line in x: rotation about z), by a penalty on the values at the points, plus
-a mass term eps int u1.v1 (z translation is carried by the contact).
+Each body is a shape tree (driver/geometry.py: ball, ellipsoid, box with rounded
+edges, cylinder, half-space, an expression, and their unions, intersections and
+differences, placed by translate and rotate) with supports (`hold`, on box faces
+strongly or on cut parts by Nitsche) and loads (`load`, tractions; a body force),
+written as the run's scene module (driver/scene_module.py, docs/scene-modules.md).
+The legacy shapes "ball" (centre, radius) and "slab" (top, held on the box bottom)
+of the reference scene still read as before. A floating body 1 (no support
+holding every component) has its rigid motions held by the mass term and by a
+penalty on u1_x, u1_y at two points A, B on a vertical line and on u1_y at a
+third point C off it (z translation is carried by the contact).
 
-Rules across keys (check below): the box is not empty; the ball lies inside the
-box and not below the slab top; the slab top lies inside the box; A, B and C lie
-inside the ball, A and B on one vertical line at different heights, C off it in
-x; each body gives lambda and mu or E and nu (not both); adapt.steps > 0 needs
+Rules across keys (check below): the box is not empty; each body meets the box and
+they do not overlap at the start; a probe lies in its body; A, B and C lie inside
+body 1, A and B on one vertical line at different heights, C off it in x; each
+body gives lambda and mu or E and nu (not both); adapt.steps > 0 needs
 output.estimators; adapt.switch starts with r, holds a and no p.
 """
+
+from pathlib import Path
+
+import numpy as np
 
 from driver.errors import SceneError
 from driver.fd2d import body_schema
 from driver.materials import body_lame
+from driver.scene_module import Bodies, legacy_supports
 from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_adapt,
                            two_body_solver_schema)
 
@@ -42,23 +51,27 @@ SCHEMA = {
                              doc="growth of the edge size with the distance beyond grade_radius"),
     },
     "body1": body_schema({
-        "shape": Field("str", default="ball", choices=("ball",), doc="body 1 is a ball, inside the box"),
-        "centre": Field("vector", default=[0.0, 0.0, 0.0], length=3, unit="length", doc="centre of the ball"),
-        "radius": Field("float", default=0.25, check=positive, unit="length", doc="radius of the ball"),
+        "shape": Field("tree", default="ball", doc="a shape table (docs/scenes.md, 'Shapes'), or the legacy "
+                                                   "name \"ball\" with the keys below"),
+        "centre": Field("vector", default=None, length=3, unit="length",
+                        doc="legacy ball: centre (default [0, 0, 0])"),
+        "radius": Field("float", default=None, check=positive, unit="length", doc="legacy ball: radius (default 0.25)"),
     }, [0.0, 0.0, -0.1]),
     "body2": body_schema({
-        "shape": Field("str", default="slab", choices=("slab",), doc="body 2 is the part of the box below top"),
-        "top": Field("float", default=-0.25, unit="length",
-                     doc="height of the slab's top; not above the ball's lowest point"),
+        "shape": Field("tree", default="slab", doc="a shape table, or the legacy name \"slab\" (the box below "
+                                                   "top, held on the box bottom)"),
+        "top": Field("float", default=None, unit="length", doc="legacy slab: height of its top (default -0.25)"),
     }, [0.0, 0.0, 0.0]),
+    "probe": Field("tree", default=[], doc="named points: [[probe]] tables with name, point = [x, y, z] and body "
+                                           "(1 or 2); results.json 'probes' gives their displacement"),
     "rigid": {
         "mass_eps": Field("float", default=1e-7, check=at_least(0.0), unit="1",
                           doc="mass term eps muStar int u1.v1 against the floating ball's rigid motions "
                               "(relative to the shear modulus muStar, see method.gamma_scaling)"),
-        "fix_xy_points": Field("vector", default=[0.0, 0.0, 0.0, 0.0, 0.0, 0.1], length=6, unit="length",
+        "fix_xy_points": Field("vector", default=None, length=6, unit="length",
                                doc="u1_x = u1_y = 0 at A and B (xA, yA, zA, xB, yB, zB), inside the ball, "
                                    "on one vertical line"),
-        "fix_y_point": Field("vector", default=[0.1, 0.0, 0.0], length=3, unit="length",
+        "fix_y_point": Field("vector", default=None, length=3, unit="length",
                              doc="u1_y = 0 at C (rotation about z), inside the ball, off the line AB in x"),
     },
     "method": {
@@ -91,8 +104,35 @@ SCHEMA = {
 }
 
 
-def inside_ball(point, centre, radius):
-    return sum((p - c) ** 2 for p, c in zip(point, centre)) < radius ** 2
+LEGACY_KEYS = {"body1": {"centre": [0.0, 0.0, 0.0], "radius": 0.25}, "body2": {"top": -0.25}}
+LEGACY_SHAPES = {"body1": "ball", "body2": "slab"}
+
+
+def fill_legacy(scene, source):
+    for key, defaults in LEGACY_KEYS.items():
+        body = scene[key]
+        legacy = isinstance(body["shape"], str)
+        if legacy and body["shape"] != LEGACY_SHAPES[key]:
+            raise SceneError(f"{source}: key '{key}.shape': a name must be {LEGACY_SHAPES[key]!r} (the legacy "
+                             f"shape); other shapes are tables {{ type = \"{body['shape']}\", ... }}")
+        for name, default in defaults.items():
+            if body[name] is None:
+                body[name] = default
+            elif not legacy:
+                raise SceneError(f"{source}: key '{key}.{name}': belongs to the legacy shape "
+                                 f"{LEGACY_SHAPES[key]!r}, not to a shape table")
+
+
+def default_fix_points(bodies):
+    """A, B on the vertical line through body 1's deepest sampled point, C beside it."""
+    shape = bodies.shapes[0]
+    grids = [np.linspace(lo, hi, 41) for lo, hi in bodies.box]
+    pts = np.meshgrid(*grids, indexing="ij")
+    phi = shape.phi(*pts)
+    k = int(np.argmin(phi))
+    c = [float(g.flat[k]) for g in pts]
+    d = 0.4 * float(-phi.flat[k])
+    return c + [c[0], c[1], c[2] + d], [c[0] + d, c[1], c[2]]
 
 
 def check(scene, source):
@@ -103,26 +143,33 @@ def check(scene, source):
         raise SceneError(f"{source}: key 'geometry': the box is empty (need max > min on every axis)")
     for key in ("body1", "body2"):
         scene[key]["lame"] = body_lame(scene[key], source, key)
-    ball = scene["body1"]
-    c, r = ball["centre"], ball["radius"]
-    if any(c[i] - r <= lo[i] or c[i] + r >= hi[i] for i in range(3)):
-        raise SceneError(f"{source}: key 'body1': the ball (centre {c}, radius {r}) is not inside the box")
-    slab = scene["body2"]
-    if not geo["zmin"] < slab["top"] < geo["zmax"]:
-        raise SceneError(f"{source}: key 'body2.top': the slab top {slab['top']} misses the box "
+    fill_legacy(scene, source)
+    if isinstance(scene["body2"]["shape"], str) and not geo["zmin"] < scene["body2"]["top"] < geo["zmax"]:
+        raise SceneError(f"{source}: key 'body2.top': the slab top {scene['body2']['top']} misses the box "
                          f"({geo['zmin']}, {geo['zmax']})")
-    if c[2] - r < slab["top"] - 1e-12:
-        raise SceneError(f"{source}: key 'body1': the ball overlaps the slab initially "
-                         f"(lowest point {c[2] - r:g} < slab top {slab['top']:g})")
+    legacy_supports(scene, 3)
+    if isinstance(scene["body1"]["shape"], str) and not scene["probe"]:
+        scene["probe"] = [{"name": "centre", "point": list(scene["body1"]["centre"]), "body": 1}]
+    bodies = Bodies(scene, 3, source, Path(source).parent)
+    scene["_bodies"] = bodies
     if scene["adapt"]["steps"] > 0 and not scene["output"]["estimators"]:
         raise SceneError(f"{source}: key 'adapt.steps': adaptation needs output.estimators = true")
     if not scene["adapt"]["switch"].startswith("r") or "a" not in scene["adapt"]["switch"] or "p" in scene["adapt"]["switch"]:
         raise SceneError(f"{source}: key 'adapt.switch': tetgreconstruction needs 'r' first, 'a', and no 'p'")
     rigid = scene["rigid"]
+    if rigid["fix_xy_points"] is None or rigid["fix_y_point"] is None:
+        if isinstance(scene["body1"]["shape"], str):
+            ab, c = [0.0, 0.0, 0.0, 0.0, 0.0, 0.1], [0.1, 0.0, 0.0]
+        else:
+            ab, c = default_fix_points(bodies)
+        rigid["fix_xy_points"] = rigid["fix_xy_points"] or ab
+        rigid["fix_y_point"] = rigid["fix_y_point"] or c
+    if not bodies.floating(1):
+        return
     a, b = rigid["fix_xy_points"][:3], rigid["fix_xy_points"][3:]
     for name, point in (("fix_xy_points", a), ("fix_xy_points", b), ("fix_y_point", rigid["fix_y_point"])):
-        if not inside_ball(point, c, r):
-            raise SceneError(f"{source}: key 'rigid.{name}': {point} is not inside the ball")
+        if bodies.shapes[0].phi(*[np.array([v]) for v in point])[0] >= 0:
+            raise SceneError(f"{source}: key 'rigid.{name}': {point} is not inside body 1")
     if abs(a[0] - b[0]) > 1e-12 or abs(a[1] - b[1]) > 1e-12 or a[2] == b[2]:
         raise SceneError(f"{source}: key 'rigid.fix_xy_points': A and B must lie on one vertical line, "
                          f"at different heights")
@@ -131,9 +178,13 @@ def check(scene, source):
                          f"through A and B in x (it fixes the rotation about z)")
 
 
+def scene_module(scene):
+    """Text of the run's scene module (docs/scene-modules.md)."""
+    return scene["_bodies"].module_text(scene["scene"]["name"])
+
+
 def freefem_args(scene, mesh_file=""):
     geo, meth, solver = scene["geometry"], scene["method"], scene["solver"]
-    ball, slab = scene["body1"], scene["body2"]
     args = FreeFemFlags([f"-Ddegree={meth['degree']}"])
     put = args.put
     put("name", scene["scene"]["name"])
@@ -143,17 +194,14 @@ def freefem_args(scene, mesh_file=""):
     if scene["mesh"]["grade_h"] > 0:
         for key in ("grade_h", "grade_radius", "grade_slope"):
             put(key, scene["mesh"][key])
-    for axis, value in zip("xyz", ball["centre"]):
-        put(f"ball_c{axis}", value)
-    put("ball_r", ball["radius"])
-    put("slab_top", slab["top"])
-    for i, body in ((1, ball), (2, slab)):
+    for i, body in ((1, scene["body1"]), (2, scene["body2"])):
         put(f"lambda{i}", body["lame"][0])
         put(f"mu{i}", body["lame"][1])
         for axis, value in zip("xyz", body["body_force"]):
             put(f"f{i}{axis}", value)
     rigid = scene["rigid"]
     put("mass_eps", rigid["mass_eps"])
+    put("pins", 1)       # they act only on a floating body 1
     for key, value in zip(("fix_ax", "fix_ay", "fix_az", "fix_bx", "fix_by", "fix_bz"), rigid["fix_xy_points"]):
         put(key, value)
     for key, value in zip(("fix_cx", "fix_cy", "fix_cz"), rigid["fix_y_point"]):
@@ -186,29 +234,29 @@ def prepare_mesh(scene, workdir, run_command):
 
 def summary_lines(results):
     contact, cut = results["contact"], results["cut"]
-    centre = results["ball"]["centre_displacement"]
     force = contact["force_on_body1"]
     lines = []
     est = results.get("estimator")
     if est:
         lines.append("estimator: eta {eta:.4g} (eta1 {eta1:.3g}, eta2 {eta2:.3g}, eta3 {eta3:.3g}, eta4 {eta4:.3g}, "
-                     "eta5 {eta5:.3g}), zeta {zeta:.3g}; ball {eta_body1:.3g}, slab {eta_body2:.3g}".format(**est))
+                     "eta5 {eta5:.3g}), zeta {zeta:.3g}; body 1 {eta_body1:.3g}, body 2 {eta_body2:.3g}".format(**est))
     steps = results.get("steps", {})
     if len(steps.get("dofs", [])) > 1:
         lines.append(f"adaptation (tetgen): {len(steps['dofs'])} solves, DOFs {int(steps['dofs'][0])} -> "
                      f"{int(steps['dofs'][-1])}, eta {steps['eta'][0]:.4g} -> {steps['eta'][-1]:.4g}, "
-                     f"ball volume {steps['volume_body1'][0]:.6f} -> {steps['volume_body1'][-1]:.6f}")
+                     f"body 1 volume {steps['volume_body1'][0]:.6f} -> {steps['volume_body1'][-1]:.6f}")
     balance = results.get("balance")
     if balance and balance.get("unbalanced"):
         lines.append(f"UNBALANCED (kept by solver.allow_unbalanced): {balance['message']}")
     return lines + [
         f"bodies: {results['dofs_body1']} + {results['dofs_body2']} DOFs on the cut spaces, "
         f"volumes {results['volumes']['body1']:.6g} and {results['volumes']['body2']:.6g}",
-        f"ball centre displacement: ({centre[0]:.3g}, {centre[1]:.3g}, {centre[2]:.6g})",
+    ] + [f"probe {name}: displacement ({u[0]:.3g}, {u[1]:.3g}, {u[2]:.6g})"
+         for name, u in results.get("probes", {}).items()] + [
         f"contact: active area {contact['active_area']:.4g} of {contact['boundary_area']:.4g}, "
-        f"force on ball ({force[0]:.3g}, {force[1]:.3g}, {force[2]:.6g}), "
+        f"force on body 1 ({force[0]:.3g}, {force[1]:.3g}, {force[2]:.6g}), "
         f"balance error {contact['force_balance_error']:.1e}, max pressure {contact['max_pressure']:.4g}",
-        f"cut elements: min ratio {cut['min_ratio_body1']:.2e} (ball), {cut['min_ratio_body2']:.2e} (slab); "
+        f"cut elements: min ratio {cut['min_ratio_body1']:.2e} (body 1), {cut['min_ratio_body2']:.2e} (body 2); "
         f"stabilization {cut['stabilization']}: cases a/b/c = {cut['case_a']}/{cut['case_b']}/{cut['case_c']} "
         f"(per interface triangle), sliver elements dropped {cut['dropped_body1']} + {cut['dropped_body2']}",
     ]

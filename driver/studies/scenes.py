@@ -29,7 +29,7 @@ def hertz_row(results, folder):
     """Half-width (half the extent of the active points), total force and the relative
     L2 difference of the pressure from Hertz's over the zone |x| < a."""
     a, p0 = hertz_solution()
-    x0, x1 = results["contact"]["active_extent"][:2]
+    x0, x1 = results["contact"]["active_extent"]["x"]
     s = pd.read_csv(folder / "contact_pressure.csv")
     zone = s[(s.x.abs() < a) & (s.y < 0.05)]
     exact = p0 * np.sqrt(1 - zone.x ** 2 / a ** 2)
