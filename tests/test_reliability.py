@@ -240,8 +240,8 @@ def test_direct_2d_run_refuses_bad_options(args, message):
 
 @pytest.mark.parametrize("args, message", [
     (["-thetaa", "1"], "unknown option '-thetaa'"),
-    (["-slab_top", "0.9"], "the slab top misses the box"),
-    (["-ball_cz", "-0.1"], "the ball overlaps the slab"),
+    (["-fix_az", "0.4"], "a fixing point lies outside body 1's submesh"),
+    (["-ball_cz", "-0.1"], "unknown option '-ball_cz'"),     # the geometry is the scene module's
 ])
 def test_direct_3d_run_refuses_bad_options(args, message):
     proc = run_freefem("fd_contact_3d.edp", *args)
