@@ -47,6 +47,9 @@ SCHEMA = {
                          doc="0: uniform; else one tetgen pass refines toward the contact point to this edge size"),
         "grade_radius": Field("float", default=0.1, check=at_least(0.0), unit="length",
                               doc="edge size grade_h within this distance of the contact point"),
+        "grade_point": Field("vector", default=None, length=3, unit="length",
+                             doc="where grading refines (default: the legacy ball's contact point, else the "
+                                 "first probe)"),
         "grade_slope": Field("float", default=0.25, check=positive, unit="1",
                              doc="growth of the edge size with the distance beyond grade_radius"),
     },
@@ -68,9 +71,9 @@ SCHEMA = {
         "mass_eps": Field("float", default=1e-7, check=at_least(0.0), unit="1",
                           doc="mass term eps muStar int u1.v1 against the floating ball's rigid motions "
                               "(relative to the shear modulus muStar, see method.gamma_scaling)"),
-        "fix_xy_points": Field("vector", default=None, length=6, unit="length",
-                               doc="u1_x = u1_y = 0 at A and B (xA, yA, zA, xB, yB, zB), inside the ball, "
-                                   "on one vertical line"),
+        "fix_xy_points": Field("vector", default=None, unit="length",
+                               doc="pins of a floating body 1: u1_x = u1_y = 0 at A and B (xA, yA, zA, xB, yB, "
+                                   "zB), inside it, on one vertical line; [] none (default: from the body)"),
         "fix_y_point": Field("vector", default=None, length=3, unit="length",
                              doc="u1_y = 0 at C (rotation about z), inside the ball, off the line AB in x"),
     },
@@ -162,9 +165,11 @@ def check(scene, source):
             ab, c = [0.0, 0.0, 0.0, 0.0, 0.0, 0.1], [0.1, 0.0, 0.0]
         else:
             ab, c = default_fix_points(bodies)
-        rigid["fix_xy_points"] = rigid["fix_xy_points"] or ab
-        rigid["fix_y_point"] = rigid["fix_y_point"] or c
-    if not bodies.floating(1):
+        rigid["fix_xy_points"] = ab if rigid["fix_xy_points"] is None else rigid["fix_xy_points"]
+        rigid["fix_y_point"] = c if rigid["fix_y_point"] is None else rigid["fix_y_point"]
+    if len(rigid["fix_xy_points"]) not in (0, 6):
+        raise SceneError(f"{source}: key 'rigid.fix_xy_points': expected [xA, yA, zA, xB, yB, zB] or [] (no pins)")
+    if not bodies.floating(1) or not rigid["fix_xy_points"]:
         return
     a, b = rigid["fix_xy_points"][:3], rigid["fix_xy_points"][3:]
     for name, point in (("fix_xy_points", a), ("fix_xy_points", b), ("fix_y_point", rigid["fix_y_point"])):
@@ -176,6 +181,18 @@ def check(scene, source):
     if abs(rigid["fix_y_point"][0] - a[0]) < 1e-12:
         raise SceneError(f"{source}: key 'rigid.fix_y_point': C must lie off the vertical line "
                          f"through A and B in x (it fixes the rotation about z)")
+
+
+def grade_point(scene):
+    """Where grading refines: mesh.grade_point, else the legacy ball's lowest point on the
+    slab top, else the first probe."""
+    if scene["mesh"]["grade_point"]:
+        return scene["mesh"]["grade_point"]
+    body1, body2 = scene["body1"], scene["body2"]
+    if isinstance(body1["shape"], str) and isinstance(body2["shape"], str):
+        return [body1["centre"][0], body1["centre"][1], body2["top"]]
+    probes = scene["probe"]
+    return probes[0]["point"] if probes else [0.0, 0.0, 0.0]
 
 
 def scene_module(scene):
@@ -194,6 +211,8 @@ def freefem_args(scene, mesh_file=""):
     if scene["mesh"]["grade_h"] > 0:
         for key in ("grade_h", "grade_radius", "grade_slope"):
             put(key, scene["mesh"][key])
+        for axis, value in zip("xyz", grade_point(scene)):
+            put(f"grade_{axis}", value)
     for i, body in ((1, scene["body1"]), (2, scene["body2"])):
         put(f"lambda{i}", body["lame"][0])
         put(f"mu{i}", body["lame"][1])
@@ -201,7 +220,7 @@ def freefem_args(scene, mesh_file=""):
             put(f"f{i}{axis}", value)
     rigid = scene["rigid"]
     put("mass_eps", rigid["mass_eps"])
-    put("pins", 1)       # they act only on a floating body 1
+    put("pins", int(bool(rigid["fix_xy_points"])))       # they act only on a floating body 1
     for key, value in zip(("fix_ax", "fix_ay", "fix_az", "fix_bx", "fix_by", "fix_bz"), rigid["fix_xy_points"]):
         put(key, value)
     for key, value in zip(("fix_cx", "fix_cy", "fix_cz"), rigid["fix_y_point"]):

@@ -24,15 +24,18 @@ def test_rounded_cube_volume_and_balance(run_scene):
     assert r["contact"]["force_on_body1"][2] == pytest.approx(0.1 * r["volumes"]["body1"], rel=1e-6)
 
 
-def test_sphere_on_sphere_is_kept_but_flagged(run_scene):
-    """A ball on a ball: the pins hold the sideways force of the mesh's asymmetry, which
-    the scene keeps (allow_unbalanced) and results.json flags; it stays small (measured
-    0.25 % of the load)."""
+def test_sphere_on_sphere_balances_without_pins(run_scene, tmp_path):
+    """A ball on a ball without pins: the mass term holds the rigid motions and carries
+    under 1e-6 of the load (the gate); with pins they would carry 0.25 %."""
     r = run_scene("cases/sphere_on_sphere.toml", *QUIET).results
-    assert r["balance"]["unbalanced"] == 1
-    assert r["balance"]["pins_share"] < 5e-3
+    assert r["supports"]["pins"] == 0 and not r["balance"]["unbalanced"]
+    assert r["balance"]["balance_error"] < 1e-6
     assert r["probes"]["centre"][2] < 0
     assert r["volumes"]["body1_exact"] is None      # the ball touches the box top: clipped, no formula
+    pinned = run_cli("run", "cases/sphere_on_sphere.toml", "--set",
+                     "rigid.fix_xy_points=[0.0, 0.0, 0.25, 0.0, 0.0, 0.35]", "--set", "rigid.fix_y_point=[0.1, 0.0, 0.25]",
+                     "--set", "output.vtu=false", "--out", str(tmp_path / "pinned"))
+    assert pinned.returncode == 3 and "pins carry" in pinned.stderr
 
 
 def test_default_3d_scene_module_is_the_generated_one():
