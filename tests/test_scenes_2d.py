@@ -155,8 +155,8 @@ def gradient_foot_point(px, py, cx=0.0, cy=-0.3, a=0.4, b=0.15):
 
 def test_contact_projection_is_the_closest_point_on_an_ellipse(tmp_path, run_scene):
     """Pi(x) (contact_pressure.csv proj_x, proj_y) against a closest-point computation on
-    the exact ellipse, for the active points: measured max 2e-13; the gradient foot
-    point x - phi grad phi/|grad phi|^2 is off by up to about 1e-5 there."""
+    the exact ellipse, for the active points: measured max 4.8e-11 (51 points); the
+    gradient foot point x - phi grad phi/|grad phi|^2 is off by up to 1.6e-3 there."""
     run = run_scene(scene_file(tmp_path, ELLIPSE_BELOW), "output.vtu=false")
     s = run.contact_samples()
     act = s[s.active > 0.5]
@@ -165,7 +165,7 @@ def test_contact_projection_is_the_closest_point_on_an_ellipse(tmp_path, run_sce
     foot = np.array([gradient_foot_point(x, y) for x, y in zip(act.x, act.y)])
     ours = np.column_stack([act.proj_x, act.proj_y])
     assert np.abs(ours - exact).max() < 1e-9
-    assert np.abs(foot - exact).max() > 1e-7     # the old projection was measurably off
+    assert np.abs(foot - exact).max() > 1e-4     # the old projection was measurably off
 
 
 PUNCH_CUT_HOLD = """
