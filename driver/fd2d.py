@@ -23,7 +23,8 @@ import numpy as np
 
 from driver.errors import SceneError
 from driver.materials import body_lame
-from driver.scene_module import Bodies, legacy_supports
+from driver.scene_module import Bodies, fill_legacy, legacy_probe, legacy_supports
+from driver.scene_module import scene_module  # noqa: F401  (the runner calls module.scene_module)
 from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_adapt,
                            two_body_solver_schema)
 
@@ -135,29 +136,13 @@ LEGACY_KEYS = {"body1": {"centre": [0.0, 0.0], "radius": 0.25}, "body2": {"top":
 LEGACY_SHAPES = {"body1": "disk", "body2": "slab"}
 
 
-def fill_legacy(scene, source):
-    """Defaults of the legacy shapes; their keys are refused beside a shape table."""
-    for key, defaults in LEGACY_KEYS.items():
-        body = scene[key]
-        legacy = isinstance(body["shape"], str)
-        if legacy and body["shape"] != LEGACY_SHAPES[key]:
-            raise SceneError(f"{source}: key '{key}.shape': a name must be {LEGACY_SHAPES[key]!r} (the legacy "
-                             f"shape); other shapes are tables {{ type = \"{body['shape']}\", ... }}")
-        for name, default in defaults.items():
-            if body[name] is None:
-                body[name] = default
-            elif not legacy:
-                raise SceneError(f"{source}: key '{key}.{name}': belongs to the legacy shape "
-                                 f"{LEGACY_SHAPES[key]!r}, not to a shape table")
-
-
 def check(scene, source):
     geo = scene["geometry"]
     if not (geo["xmax"] > geo["xmin"] and geo["ymax"] > geo["ymin"]):
         raise SceneError(f"{source}: key 'geometry': the box is empty (need xmax > xmin, ymax > ymin)")
     for key in ("body1", "body2"):
         scene[key]["lame"] = body_lame(scene[key], source, key)
-    fill_legacy(scene, source)
+    fill_legacy(scene, source, LEGACY_SHAPES, LEGACY_KEYS)
     slab = scene["body2"]
     line = slab["bottom_line"]
     if isinstance(slab["shape"], str):
@@ -173,8 +158,7 @@ def check(scene, source):
                 raise SceneError(f"{source}: key 'body2.bottom_line': the line y = {a:g} + {b:g} x must cross "
                                  f"the box between its bottom and the slab top")
     legacy_supports(scene, 2)
-    if isinstance(scene["body1"]["shape"], str) and not scene["probe"]:
-        scene["probe"] = [{"name": "centre", "point": list(scene["body1"]["centre"]), "body": 1}]
+    legacy_probe(scene)
     bodies = Bodies(scene, 2, source, Path(source).parent)
     scene["_bodies"] = bodies
     if scene["adapt"]["steps"] > 0 and not scene["output"]["estimators"]:
@@ -195,11 +179,6 @@ def check(scene, source):
         if bodies.shapes[0].phi(np.array([px]), np.array([py]))[0] >= 0:
             raise SceneError(f"{source}: key 'rigid.fix_x_points': ({px:g}, {py:g}) is not inside body 1")
     scene["rigid"]["fix_x_points"] = fix
-
-
-def scene_module(scene):
-    """Text of the run's scene module (docs/scene-modules.md)."""
-    return scene["_bodies"].module_text(scene["scene"]["name"])
 
 
 def freefem_args(scene, mesh_file=""):

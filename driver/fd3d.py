@@ -25,7 +25,8 @@ import numpy as np
 from driver.errors import SceneError
 from driver.fd2d import body_schema
 from driver.materials import body_lame
-from driver.scene_module import Bodies, legacy_supports
+from driver.scene_module import Bodies, fill_legacy, legacy_probe, legacy_supports
+from driver.scene_module import scene_module  # noqa: F401  (the runner calls module.scene_module)
 from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_adapt,
                            two_body_solver_schema)
 
@@ -111,21 +112,6 @@ LEGACY_KEYS = {"body1": {"centre": [0.0, 0.0, 0.0], "radius": 0.25}, "body2": {"
 LEGACY_SHAPES = {"body1": "ball", "body2": "slab"}
 
 
-def fill_legacy(scene, source):
-    for key, defaults in LEGACY_KEYS.items():
-        body = scene[key]
-        legacy = isinstance(body["shape"], str)
-        if legacy and body["shape"] != LEGACY_SHAPES[key]:
-            raise SceneError(f"{source}: key '{key}.shape': a name must be {LEGACY_SHAPES[key]!r} (the legacy "
-                             f"shape); other shapes are tables {{ type = \"{body['shape']}\", ... }}")
-        for name, default in defaults.items():
-            if body[name] is None:
-                body[name] = default
-            elif not legacy:
-                raise SceneError(f"{source}: key '{key}.{name}': belongs to the legacy shape "
-                                 f"{LEGACY_SHAPES[key]!r}, not to a shape table")
-
-
 def default_fix_points(bodies):
     """A, B on the vertical line through body 1's deepest sampled point, C beside it."""
     shape = bodies.shapes[0]
@@ -146,13 +132,12 @@ def check(scene, source):
         raise SceneError(f"{source}: key 'geometry': the box is empty (need max > min on every axis)")
     for key in ("body1", "body2"):
         scene[key]["lame"] = body_lame(scene[key], source, key)
-    fill_legacy(scene, source)
+    fill_legacy(scene, source, LEGACY_SHAPES, LEGACY_KEYS)
     if isinstance(scene["body2"]["shape"], str) and not geo["zmin"] < scene["body2"]["top"] < geo["zmax"]:
         raise SceneError(f"{source}: key 'body2.top': the slab top {scene['body2']['top']} misses the box "
                          f"({geo['zmin']}, {geo['zmax']})")
     legacy_supports(scene, 3)
-    if isinstance(scene["body1"]["shape"], str) and not scene["probe"]:
-        scene["probe"] = [{"name": "centre", "point": list(scene["body1"]["centre"]), "body": 1}]
+    legacy_probe(scene)
     bodies = Bodies(scene, 3, source, Path(source).parent)
     scene["_bodies"] = bodies
     if scene["adapt"]["steps"] > 0 and not scene["output"]["estimators"]:
@@ -193,11 +178,6 @@ def grade_point(scene):
         return [body1["centre"][0], body1["centre"][1], body2["top"]]
     probes = scene["probe"]
     return probes[0]["point"] if probes else [0.0, 0.0, 0.0]
-
-
-def scene_module(scene):
-    """Text of the run's scene module (docs/scene-modules.md)."""
-    return scene["_bodies"].module_text(scene["scene"]["name"])
 
 
 def freefem_args(scene, mesh_file=""):

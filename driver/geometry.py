@@ -18,7 +18,6 @@ and rebuilt from an allowed set of names: the scene's text never reaches FreeFEM
 
 import ast
 import math
-from pathlib import Path
 
 import numpy as np
 

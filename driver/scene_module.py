@@ -296,6 +296,34 @@ class Bodies:
         return not any("region" in h or h["components"] == full for h in self.holds[i - 1])
 
 
+def fill_legacy(scene, source, shapes, defaults):
+    """The legacy shapes (shapes: body -> name, e.g. "disk", "slab") take their keys'
+    defaults; those keys are refused beside a shape table. Then the legacy slab's
+    support and, for a legacy body 1 without probes, a probe "centre" at its centre."""
+    for key, keys in defaults.items():
+        body = scene[key]
+        legacy = isinstance(body["shape"], str)
+        if legacy and body["shape"] != shapes[key]:
+            raise SceneError(f"{source}: key '{key}.shape': a name must be {shapes[key]!r} (the legacy "
+                             f"shape); other shapes are tables {{ type = \"{body['shape']}\", ... }}")
+        for name, default in keys.items():
+            if body[name] is None:
+                body[name] = default
+            elif not legacy:
+                raise SceneError(f"{source}: key '{key}.{name}': belongs to the legacy shape "
+                                 f"{shapes[key]!r}, not to a shape table")
+
+
+def legacy_probe(scene):
+    if isinstance(scene["body1"]["shape"], str) and not scene["probe"]:
+        scene["probe"] = [{"name": "centre", "point": list(scene["body1"]["centre"]), "body": 1}]
+
+
+def scene_module(scene):
+    """Text of a checked scene's module (the runner writes it as RUN/scene.idp)."""
+    return scene["_bodies"].module_text(scene["scene"]["name"])
+
+
 def legacy_supports(scene, dim):
     """Supports of the legacy slab: strongly on the box bottom, or Nitsche on its bottom line."""
     body2 = scene["body2"]
