@@ -13,7 +13,7 @@ BALL = "cases/ball_on_slab.toml"
 
 
 def centre_z(run):
-    return run.results["ball"]["centre_displacement"][2]
+    return run.results["probes"]["centre"][2]
 
 
 @pytest.mark.parametrize("theta", [1, 0, -1])

@@ -149,7 +149,7 @@ def run_with_errors(ref, degree, theta, nx):
                newton_iterations=results["newton"]["iterations"],
                factorizations=results["newton"]["factorizations"],
                force_balance_error=results["contact"]["force_balance_error"],
-               centre_uz=results["ball"]["centre_displacement"][2],
+               centre_uz=results["probes"]["centre"][2],
                error_cpu_s=err["cpu_s"], **cost_columns(results))
     return out
 
@@ -161,7 +161,7 @@ def reference_row(ref):
                 newton_iterations=results["newton"]["iterations"],
                 factorizations=results["newton"]["factorizations"],
                 force_balance_error=results["contact"]["force_balance_error"],
-                centre_uz=results["ball"]["centre_displacement"][2], **cost_columns(results))
+                centre_uz=results["probes"]["centre"][2], **cost_columns(results))
 
 
 def cost_exponents(table):
@@ -320,7 +320,7 @@ def vonmises_figure(folder=None, scale=3.0):
     fig.colorbar(image, ax=ax, shrink=0.7, label="von Mises stress")
     graded = f", graded to 1/{1 / results['grade_h']:.0f}" if results.get("grade_h") else ""
     ax.set_title(f"ball on slab, plane y = 0, P{results['degree']} nx = {results['nx']}{graded}\n"
-                 f"displacement x {scale:g}; centre u_z = {results['ball']['centre_displacement'][2]:.4f}")
+                 f"displacement x {scale:g}; centre u_z = {results['probes']['centre'][2]:.4f}")
     PLOTS_DIR.mkdir(exist_ok=True)
     fig.savefig(PLOTS_DIR / "ball_on_slab_vonmises.png", dpi=130)
     plt.close(fig)
