@@ -2,11 +2,12 @@
 cached references, log-log slopes and Markdown tables."""
 
 import sys
+from pathlib import Path
 
 import numpy as np
 
 from driver.errors import DriverError, SceneError
-from driver.runner import REPO, run_scene
+from driver.runner import REPO, run_freefem_tool, run_scene
 from driver.scene import load_scene
 
 RESULTS_DIR = REPO / "results"
@@ -27,6 +28,12 @@ def run_point(case, overrides, runs_dir=None):
     row.update(status="converged", message="", wall_s=wall,
                newton_iterations=results["newton"]["iterations"], dofs=results["dofs"])
     return row, results, folder
+
+
+def tool_errors(tool, ref, run_folder):
+    """Errors of a run against a saved reference by a freefem/tools/ script (errors.json)."""
+    return run_freefem_tool(tool, ["-ref", str(ref), "-run", str(run_folder), "-out", str(run_folder / "errors.json")],
+                            run_folder / "errors.json", f"error computation for {Path(run_folder).name}")
 
 
 def progress(i, n, text):

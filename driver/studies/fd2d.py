@@ -15,7 +15,7 @@ from driver.errors import DriverError
 from driver.runner import REPO, run_command, run_freefem_tool, run_scene
 from driver.scene import load_scene
 from driver.studies.common import (PLOTS_DIR, RESULTS_DIR, cached_reference, loglog_slope, markdown_table, progress,
-                            run_point)
+                                   run_point, tool_errors)
 from driver.sweep import file_digest, run_points, task_point
 
 DISK = REPO / "cases" / "disk_on_slab.toml"
@@ -44,9 +44,7 @@ def reference(nx=REFERENCE_NX):
 
 
 def errors_against(ref, run_folder):
-    return run_freefem_tool("fd_error_2d.edp", ["-ref", str(ref), "-run", str(run_folder),
-                                                "-out", str(run_folder / "errors.json")],
-                            run_folder / "errors.json", f"error computation for {run_folder.name}")
+    return tool_errors("fd_error_2d.edp", ref, run_folder)
 
 
 def run_with_errors(ref, overrides, labels):

@@ -15,9 +15,10 @@ import pandas as pd
 
 from driver.errors import DriverError, SceneError
 from driver.studies.fd2d import rates_of
-from driver.runner import REPO, parse_json_file, run_freefem_tool, run_scene
+from driver.runner import REPO, parse_json_file, run_scene
 from driver.scene import load_scene
-from driver.studies.common import PLOTS_DIR, RESULTS_DIR, cached_reference, loglog_slope, markdown_table, progress
+from driver.studies.common import (PLOTS_DIR, RESULTS_DIR, cached_reference, loglog_slope, markdown_table, progress,
+                                   tool_errors)
 
 BALL = REPO / "cases" / "ball_on_slab.toml"
 # The reference: P2, theta = -1, on cube(nx) refined by tetgen toward the contact
@@ -86,9 +87,7 @@ def reference():
 
 
 def errors_against(ref, run_folder):
-    return run_freefem_tool("fd_error_3d.edp", ["-ref", str(ref), "-run", str(run_folder),
-                                                "-out", str(run_folder / "errors.json")],
-                            run_folder / "errors.json", f"error computation for {run_folder.name}")
+    return tool_errors("fd_error_3d.edp", ref, run_folder)
 
 
 def cost_columns(results):
