@@ -25,7 +25,8 @@ from driver.errors import SceneError
 from driver.materials import body_lame
 from driver.scene_module import Bodies, fill_legacy, legacy_probe, legacy_supports
 from driver.scene_module import scene_module  # noqa: F401  (the runner calls module.scene_module)
-from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_adapt,
+from driver.scene import SCENE_HEADER
+from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_declared,
                            two_body_solver_schema)
 
 STABILIZATIONS = ("auto", "none", "neighbour", "ghost")
@@ -41,31 +42,37 @@ LOAD_DOC = ("tractions: [[bodyN.load]] tables, each on a box face (face = ...) o
             "a region (region = {{ shape }}), with traction = [...] (force/area)")
 
 
-def body_schema(shape_fields, force):
-    """A body's fields: its shape, supports, loads, Lame (or E, nu) and a volume force."""
+def body_schema(shape_fields, force, n):
+    """Body n's fields: its shape, supports, loads, Lame (or E, nu) and a volume force."""
+    lame = f"lambda{n} mu{n}"
+    force_flags = tuple(f"f{n}{axis}" for axis in "xyz"[:len(force)])
     return dict(shape_fields, **{
         "hold": Field("tree", default=[], doc=HOLD_DOC),
         "load": Field("tree", default=[], doc=LOAD_DOC),
-        "lambda": Field("float", default=None, unit="stress",
+        "lambda": Field("float", derived=lame, default=None, unit="stress",
                         doc="first Lame coefficient (give lambda and mu, or E and nu); lambda + mu > 0"),
-        "mu": Field("float", default=None, check=positive, unit="stress", doc="shear modulus (with lambda)"),
-        "E": Field("float", default=None, check=positive, unit="stress", doc="Young's modulus (with nu)"),
-        "nu": Field("float", default=None, check=open_interval(-1.0, 0.5), unit="1",
+        "mu": Field("float", derived=lame, default=None, check=positive, unit="stress",
+                    doc="shear modulus (with lambda)"),
+        "E": Field("float", derived=lame, default=None, check=positive, unit="stress",
+                   doc="Young's modulus (with nu)"),
+        "nu": Field("float", derived=lame, default=None, check=open_interval(-1.0, 0.5), unit="1",
                     doc="Poisson's ratio (with E; plane strain in 2D)"),
-        "body_force": Field("vector", default=force, length=len(force), unit="force/volume",
+        "body_force": Field("vector", flag=force_flags, default=force, length=len(force), unit="force/volume",
                             doc="volume force on the body"),
     })
 
 
 SCHEMA = {
     "geometry": {
-        "xmin": Field("float", default=-0.5, unit="length", doc="background box, left side"),
-        "xmax": Field("float", default=0.5, unit="length", doc="background box, right side (> xmin)"),
-        "ymin": Field("float", default=-0.5, unit="length", doc="background box, bottom (the slab is clamped here)"),
-        "ymax": Field("float", default=0.5, unit="length", doc="background box, top (> ymin)"),
+        "xmin": Field("float", flag="xmin", default=-0.5, unit="length", doc="background box, left side"),
+        "xmax": Field("float", flag="xmax", default=0.5, unit="length", doc="background box, right side (> xmin)"),
+        "ymin": Field("float", flag="ymin", default=-0.5, unit="length",
+                      doc="background box, bottom (the slab is clamped here)"),
+        "ymax": Field("float", flag="ymax", default=0.5, unit="length", doc="background box, top (> ymin)"),
     },
     "mesh": {
-        "nx": Field("int", default=80, check=at_least(2), doc="elements per side of the box (h = width/nx)"),
+        "nx": Field("int", flag="nx", default=80, check=at_least(2),
+                    doc="elements per side of the box (h = width/nx)"),
     },
     "body1": body_schema({
         "shape": Field("tree", default="disk", doc=SHAPE_DOC.format(legacy='"disk"')),
@@ -73,60 +80,61 @@ SCHEMA = {
                         doc="legacy disk: centre (default [0, 0])"),
         "radius": Field("float", default=None, check=positive, unit="length",
                         doc="legacy disk: radius (default 0.25)"),
-    }, [0.0, -0.1]),
+    }, [0.0, -0.1], 1),
     "body2": body_schema({
         "shape": Field("tree", default="slab", doc=SHAPE_DOC.format(legacy='"slab" (the box below top)')),
         "top": Field("float", default=None, unit="length", doc="legacy slab: height of its top (default -0.25)"),
         "bottom_line": Field("vector", default=None, unit="length, 1",
                              doc="legacy slab: [a, b]: held by Nitsche on y = a + b x, crossing the box below "
                                  "top; absent: held strongly on the box bottom"),
-    }, [0.0, 0.0]),
+    }, [0.0, 0.0], 2),
     "probe": Field("tree", default=[], doc="named points: [[probe]] tables with name, point = [x, y] and body "
                                            "(1 or 2); results.json 'probes' gives their displacement"),
     "rigid": {
-        "mass_eps": Field("float", default=1e-7, check=at_least(0.0), unit="1",
+        "mass_eps": Field("float", flag="mass_eps", default=1e-7, check=at_least(0.0), unit="1",
                           doc="mass term eps muStar int u.v against the rigid motions of a floating body "
                               "(relative to the shear modulus muStar, see method.gamma_scaling)"),
-        "fix_x_points": Field("vector", default=None, unit="length",
+        "fix_x_points": Field("vector", derived="pins fix_ax fix_ay fix_bx fix_by", default=None, unit="length",
                               doc="pins of a floating body 1: u1_x = 0 at the nodes nearest to two points "
                                   "[x1, y1, x2, y2] inside it; [] none (default: [0, 0, 0, 0.1] for the legacy "
                                   "disk, none otherwise)"),
     },
     "method": {
-        "degree": Field("int", default=2, choices=(1, 2), doc="finite element degree (P1 or P2)"),
-        "theta": Field("float", default=-1.0, unit="1",
+        "degree": Field("int", derived="Ddegree", default=2, choices=(1, 2),
+                        doc="finite element degree (P1 or P2)"),
+        "theta": Field("float", flag="theta", default=-1.0, unit="1",
                        doc="Nitsche variant: 1 symmetric, 0 non-symmetric, -1 skew-symmetric (any real)"),
-        "gamma0": Field("float", default=1.0 / 200.0, check=positive, unit="1",
+        "gamma0": Field("float", flag="gamma0", default=1.0 / 200.0, check=positive, unit="1",
                         doc="Nitsche parameter, gamma = gamma0 h_K / muStar (1/stress with gamma_scaling none)"),
-        "stabilization": Field("str", default="auto", choices=STABILIZATIONS,
+        "stabilization": Field("str", flag="stabilization", default="auto", choices=STABILIZATIONS,
                                doc="auto: ghost for theta > 0 (coercivity on cut elements), none otherwise; "
                                    "neighbour: stress of the best-cut neighbour (R_rho); ghost: ghost penalty"),
-        "rho": Field("float", default=0.25, check=open_interval(0.0, 1.0 + 1e-12, "(0, 1]"), unit="1",
+        "rho": Field("float", flag="rho", default=0.25, check=open_interval(0.0, 1.0 + 1e-12, "(0, 1]"), unit="1",
                      doc="neighbour stabilization: cut ratio |K cap Omega_i|/|K| below which an element "
                          "borrows its neighbour's stress"),
-        "ghost_gamma": Field("float", default=1e-2, check=positive, unit="1",
+        "ghost_gamma": Field("float", flag="ghost_gamma", default=1e-2, check=positive, unit="1",
                              doc="ghost penalty weight, times lambda + 2 mu of each body"),
-        "gamma_scaling": Field("str", default="shear", choices=GAMMA_SCALINGS,
+        "gamma_scaling": Field("str", flag="gamma_scaling", default="shear", choices=GAMMA_SCALINGS,
                                doc="shear: gamma = gamma0 h_K / muStar, muStar = 2 mu1 mu2/(mu1 + mu2) (gamma0 "
                                    "dimensionless); none: gamma = gamma0 h_K (gamma0 in 1/stress); body1: "
                                    "gamma = gamma0 h_K / E1 (Young modulus of the disk, whose sigma_n enters the "
                                    "Nitsche terms); mean_compliance: gamma = gamma0 h_K (1/E1 + 1/E2)/2"),
     },
     "solver": dict(two_body_solver_schema("disk", Field(
-        "int", default=3, choices=(1, 2, 3, 4), doc="Gauss points per cut segment")),
-        time_final_solve=Field("bool", default=False,
+        "int", flag="contact_qp", default=3, choices=(1, 2, 3, 4), doc="Gauss points per cut segment")),
+        time_final_solve=Field("bool", flag="time_final_solve", default=False,
                                doc="benchmarks: time one extra factorization and solve of the final system")),
     "adapt": dict(ADAPT_SCHEMA, warm_start=Field(
-        "int", default=1, choices=(0, 1, 2),
+        "int", flag="adapt_warm_start", default=1, choices=(0, 1, 2),
         doc="Newton start after adaptation: 0 default, 1 previous active measure, 2 previous solution")),
     "output": {
-        "vtu": Field("bool", default=True, doc="write fields.vtu"),
-        "pressure_csv": Field("bool", default=True, doc="write contact_pressure.csv"),
-        "estimators": Field("bool", default=True,
+        "vtu": Field("bool", flag="vtu", default=True, doc="write fields.vtu"),
+        "pressure_csv": Field("bool", flag="csv", default=True, doc="write contact_pressure.csv"),
+        "estimators": Field("bool", flag="estimators", default=True,
                             doc="residual estimators eta_1..eta_5 (needed by adapt.steps > 0)"),
-        "save_solution": Field("bool", default=False,
+        "save_solution": Field("bool", flag="save", default=False,
                                doc="write meshes and DOF arrays (a reference; every step when adapting)"),
-        "export_matrix": Field("bool", default=False,
+        "export_matrix": Field("bool", flag="export_matrix", default=False,
                                doc="write the last Newton matrix on the free DOFs (newton_matrix.mtx, MatrixMarket)"),
     },
 }
@@ -182,45 +190,16 @@ def check(scene, source):
 
 
 def freefem_args(scene, mesh_file=""):
-    geo, meth, solver = scene["geometry"], scene["method"], scene["solver"]
-    args = FreeFemFlags([f"-Ddegree={meth['degree']}"])
-    put = args.put
-
-    put("name", scene["scene"]["name"])
-    for key in ("xmin", "xmax", "ymin", "ymax"):
-        put(key, geo[key])
-    put("nx", scene["mesh"]["nx"])
-    for i, body in ((1, scene["body1"]), (2, scene["body2"])):
-        put(f"lambda{i}", body["lame"][0])
-        put(f"mu{i}", body["lame"][1])
-        put(f"f{i}x", body["body_force"][0])
-        put(f"f{i}y", body["body_force"][1])
-    put("mass_eps", scene["rigid"]["mass_eps"])
+    """The script's flags: every key the schema declares, then the values derived here."""
+    args = FreeFemFlags([f"-Ddegree={scene['method']['degree']}"])
+    put_declared(args, scene, dict(scene=SCENE_HEADER, **SCHEMA))
+    for i in (1, 2):
+        args.put(f"lambda{i}", scene[f"body{i}"]["lame"][0])
+        args.put(f"mu{i}", scene[f"body{i}"]["lame"][1])
     fix = scene["rigid"]["fix_x_points"]
-    put("pins", int(bool(fix)))
+    args.put("pins", int(bool(fix)))
     for key, value in zip(("fix_ax", "fix_ay", "fix_bx", "fix_by"), fix):
-        put(key, value)
-    put("theta", meth["theta"])
-    put("gamma0", meth["gamma0"])
-    put("stabilization", meth["stabilization"])
-    put("rho", meth["rho"])
-    put("ghost_gamma", meth["ghost_gamma"])
-    put("gamma_scaling", meth["gamma_scaling"])
-    put("newton_tol", solver["newton_tol"])
-    put("newton_max", solver["newton_max"])
-    put("contact_qp", solver["contact_points"])
-    put("active0", solver["active0"])
-    put("predictor_steps", solver["predictor_steps"])
-    put("refactor_points", solver["refactor_points"])
-    put("time_final_solve", int(solver["time_final_solve"]))
-    put("allow_unbalanced", int(solver["allow_unbalanced"]))
-    put_adapt(args, scene["adapt"])
-    put("adapt_warm_start", scene["adapt"]["warm_start"])
-    put("vtu", int(scene["output"]["vtu"]))
-    put("csv", int(scene["output"]["pressure_csv"]))
-    put("save", int(scene["output"]["save_solution"]))
-    put("estimators", int(scene["output"]["estimators"]))
-    put("export_matrix", int(scene["output"]["export_matrix"]))
+        args.put(key, value)
     return args
 
 

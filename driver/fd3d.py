@@ -27,7 +27,8 @@ from driver.fd2d import body_schema
 from driver.materials import body_lame
 from driver.scene_module import Bodies, fill_legacy, legacy_probe, legacy_supports
 from driver.scene_module import scene_module  # noqa: F401  (the runner calls module.scene_module)
-from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_adapt,
+from driver.scene import SCENE_HEADER
+from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_declared,
                            two_body_solver_schema)
 
 STABILIZATIONS = ("auto", "none", "neighbour")
@@ -35,23 +36,25 @@ STABILIZATIONS = ("auto", "none", "neighbour")
 
 SCHEMA = {
     "geometry": {
-        "xmin": Field("float", default=-0.5, unit="length", doc="background box, x from"),
-        "xmax": Field("float", default=0.5, unit="length", doc="background box, x to (> xmin)"),
-        "ymin": Field("float", default=-0.5, unit="length", doc="background box, y from"),
-        "ymax": Field("float", default=0.5, unit="length", doc="background box, y to (> ymin)"),
-        "zmin": Field("float", default=-0.5, unit="length", doc="background box, bottom (the slab is clamped here)"),
-        "zmax": Field("float", default=0.5, unit="length", doc="background box, top (> zmin)"),
+        "xmin": Field("float", flag="xmin", default=-0.5, unit="length", doc="background box, x from"),
+        "xmax": Field("float", flag="xmax", default=0.5, unit="length", doc="background box, x to (> xmin)"),
+        "ymin": Field("float", flag="ymin", default=-0.5, unit="length", doc="background box, y from"),
+        "ymax": Field("float", flag="ymax", default=0.5, unit="length", doc="background box, y to (> ymin)"),
+        "zmin": Field("float", flag="zmin", default=-0.5, unit="length",
+                      doc="background box, bottom (the slab is clamped here)"),
+        "zmax": Field("float", flag="zmax", default=0.5, unit="length", doc="background box, top (> zmin)"),
     },
     "mesh": {
-        "nx": Field("int", default=10, check=at_least(2), doc="cells per side of the box (h = width/nx)"),
-        "grade_h": Field("float", default=0.0, check=at_least(0.0), unit="length",
+        "nx": Field("int", flag="nx", default=10, check=at_least(2),
+                    doc="cells per side of the box (h = width/nx)"),
+        "grade_h": Field("float", flag="grade_h", default=0.0, check=at_least(0.0), unit="length",
                          doc="0: uniform; else one tetgen pass refines toward the contact point to this edge size"),
-        "grade_radius": Field("float", default=0.1, check=at_least(0.0), unit="length",
+        "grade_radius": Field("float", flag="grade_radius", default=0.1, check=at_least(0.0), unit="length",
                               doc="edge size grade_h within this distance of the contact point"),
-        "grade_point": Field("vector", default=None, length=3, unit="length",
+        "grade_point": Field("vector", derived="grade_x grade_y grade_z", default=None, length=3, unit="length",
                              doc="where grading refines (default: the legacy ball's contact point, else the "
                                  "first probe)"),
-        "grade_slope": Field("float", default=0.25, check=positive, unit="1",
+        "grade_slope": Field("float", flag="grade_slope", default=0.25, check=positive, unit="1",
                              doc="growth of the edge size with the distance beyond grade_radius"),
     },
     "body1": body_schema({
@@ -59,51 +62,58 @@ SCHEMA = {
                                                    "name \"ball\" with the keys below"),
         "centre": Field("vector", default=None, length=3, unit="length",
                         doc="legacy ball: centre (default [0, 0, 0])"),
-        "radius": Field("float", default=None, check=positive, unit="length", doc="legacy ball: radius (default 0.25)"),
-    }, [0.0, 0.0, -0.1]),
+        "radius": Field("float", default=None, check=positive, unit="length",
+                        doc="legacy ball: radius (default 0.25)"),
+    }, [0.0, 0.0, -0.1], 1),
     "body2": body_schema({
         "shape": Field("tree", default="slab", doc="a shape table, or the legacy name \"slab\" (the box below "
                                                    "top, held on the box bottom)"),
         "top": Field("float", default=None, unit="length", doc="legacy slab: height of its top (default -0.25)"),
-    }, [0.0, 0.0, 0.0]),
+    }, [0.0, 0.0, 0.0], 2),
     "probe": Field("tree", default=[], doc="named points: [[probe]] tables with name, point = [x, y, z] and body "
                                            "(1 or 2); results.json 'probes' gives their displacement"),
     "rigid": {
-        "mass_eps": Field("float", default=1e-7, check=at_least(0.0), unit="1",
+        "mass_eps": Field("float", flag="mass_eps", default=1e-7, check=at_least(0.0), unit="1",
                           doc="mass term eps muStar int u1.v1 against the floating ball's rigid motions "
                               "(relative to the shear modulus muStar, see method.gamma_scaling)"),
-        "fix_xy_points": Field("vector", default=None, unit="length",
+        "fix_xy_points": Field("vector", derived="pins fix_ax fix_ay fix_az fix_bx fix_by fix_bz", default=None,
+                               unit="length",
                                doc="pins of a floating body 1: u1_x = u1_y = 0 at A and B (xA, yA, zA, xB, yB, "
                                    "zB), inside it, on one vertical line; [] none (default: from the body)"),
-        "fix_y_point": Field("vector", default=None, length=3, unit="length",
+        "fix_y_point": Field("vector", flag=("fix_cx", "fix_cy", "fix_cz"), default=None, length=3, unit="length",
                              doc="u1_y = 0 at C (rotation about z), inside the ball, off the line AB in x"),
     },
     "method": {
-        "degree": Field("int", default=1, choices=(1, 2), doc="finite element degree (P1 or P2)"),
-        "theta": Field("float", default=-1.0, unit="1",
+        "degree": Field("int", derived="Ddegree", default=1, choices=(1, 2),
+                        doc="finite element degree (P1 or P2)"),
+        "theta": Field("float", flag="theta", default=-1.0, unit="1",
                        doc="Nitsche variant: 1 symmetric, 0 non-symmetric, -1 skew-symmetric (any real)"),
-        "gamma0": Field("float", default=1.0 / 200.0, check=positive, unit="1",
+        "gamma0": Field("float", flag="gamma0", default=1.0 / 200.0, check=positive, unit="1",
                         doc="Nitsche parameter, gamma = gamma0 h_K / muStar (1/stress with gamma_scaling none)"),
-        "stabilization": Field("str", default="auto", choices=STABILIZATIONS,
+        "stabilization": Field("str", flag="stabilization", default="auto", choices=STABILIZATIONS,
                                doc="auto: neighbour for theta > 0 (coercivity on cut elements), none otherwise"),
-        "rho": Field("float", default=0.25, check=open_interval(0.0, 1.0 + 1e-12, "(0, 1]"), unit="1",
+        "rho": Field("float", flag="rho", default=0.25, check=open_interval(0.0, 1.0 + 1e-12, "(0, 1]"), unit="1",
                      doc="neighbour stabilization: cut ratio below which an element borrows its "
                          "neighbour's stress"),
-        "gamma_scaling": Field("str", default="shear", choices=("shear", "none"),
+        "gamma_scaling": Field("str", flag="gamma_scaling", default="shear", choices=("shear", "none"),
                                doc="shear: gamma = gamma0 h_K / muStar, muStar = 2 mu1 mu2/(mu1 + mu2) (gamma0 "
                                    "dimensionless); none: gamma = gamma0 h_K (gamma0 in 1/stress)"),
     },
     "solver": two_body_solver_schema("ball", Field(
-        "int", default=0, choices=(0, 1, 3, 6), doc="points per interface triangle (0: 3 for P1, 6 for P2)")),
+        "int", flag="contact_qp", default=0, choices=(0, 1, 3, 6),
+        doc="points per interface triangle (0: 3 for P1, 6 for P2)")),
     "adapt": dict(ADAPT_SCHEMA, switch=Field(
-        "str", default="rqaAQ",
+        "str", flag="adapt_switch", default="rqaAQ",
         doc="tetgen switches of tetgreconstruction (r refine, q quality, a volume bounds); must start with r, "
             "hold a and no p; steps refine by tetgen, max_coarsen is unused (tetgen never coarsens)")),
     "output": {
-        "vtu": Field("bool", default=True, doc="body VTUs and estimators.vtu (P0 eta fields on the background mesh)"),
-        "estimators": Field("bool", default=True, doc="residual estimators eta1..eta5 (needed by adapt.steps > 0)"),
-        "csv": Field("bool", default=True, doc="contact_pressure.csv and centre_cut.csv"),
-        "save_solution": Field("bool", default=False, doc="write meshes and DOF arrays (a reference)"),
+        "vtu": Field("bool", flag="vtu", default=True,
+                     doc="body VTUs and estimators.vtu (P0 eta fields on the background mesh)"),
+        "estimators": Field("bool", flag="estimators", default=True,
+                            doc="residual estimators eta1..eta5 (needed by adapt.steps > 0)"),
+        "csv": Field("bool", flag="csv", default=True, doc="contact_pressure.csv and centre_cut.csv"),
+        "save_solution": Field("bool", flag="save", default=False,
+                               doc="write meshes and DOF arrays (a reference)"),
     },
 }
 
@@ -181,49 +191,19 @@ def grade_point(scene):
 
 
 def freefem_args(scene, mesh_file=""):
-    geo, meth, solver = scene["geometry"], scene["method"], scene["solver"]
-    args = FreeFemFlags([f"-Ddegree={meth['degree']}"])
-    put = args.put
-    put("name", scene["scene"]["name"])
-    for key in ("xmin", "xmax", "ymin", "ymax", "zmin", "zmax"):
-        put(key, geo[key])
-    put("nx", scene["mesh"]["nx"])
+    """The script's flags: every key the schema declares, then the values derived here."""
+    args = FreeFemFlags([f"-Ddegree={scene['method']['degree']}"])
+    put_declared(args, scene, dict(scene=SCENE_HEADER, **SCHEMA))
     if scene["mesh"]["grade_h"] > 0:
-        for key in ("grade_h", "grade_radius", "grade_slope"):
-            put(key, scene["mesh"][key])
         for axis, value in zip("xyz", grade_point(scene)):
-            put(f"grade_{axis}", value)
-    for i, body in ((1, scene["body1"]), (2, scene["body2"])):
-        put(f"lambda{i}", body["lame"][0])
-        put(f"mu{i}", body["lame"][1])
-        for axis, value in zip("xyz", body["body_force"]):
-            put(f"f{i}{axis}", value)
-    rigid = scene["rigid"]
-    put("mass_eps", rigid["mass_eps"])
-    put("pins", int(bool(rigid["fix_xy_points"])))       # they act only on a floating body 1
-    for key, value in zip(("fix_ax", "fix_ay", "fix_az", "fix_bx", "fix_by", "fix_bz"), rigid["fix_xy_points"]):
-        put(key, value)
-    for key, value in zip(("fix_cx", "fix_cy", "fix_cz"), rigid["fix_y_point"]):
-        put(key, value)
-    put("theta", meth["theta"])
-    put("gamma0", meth["gamma0"])
-    put("stabilization", meth["stabilization"])
-    put("rho", meth["rho"])
-    put("gamma_scaling", meth["gamma_scaling"])
-    put("allow_unbalanced", int(solver["allow_unbalanced"]))
-    put("newton_tol", solver["newton_tol"])
-    put("newton_max", solver["newton_max"])
-    if solver["contact_points"]:
-        put("contact_qp", solver["contact_points"])
-    put("active0", solver["active0"])
-    put("predictor_steps", solver["predictor_steps"])
-    put("refactor_points", solver["refactor_points"])
-    put("estimators", int(scene["output"]["estimators"]))
-    put_adapt(args, scene["adapt"])
-    put("adapt_switch", scene["adapt"]["switch"])
-    put("vtu", int(scene["output"]["vtu"]))
-    put("csv", int(scene["output"]["csv"]))
-    put("save", int(scene["output"]["save_solution"]))
+            args.put(f"grade_{axis}", value)
+    for i in (1, 2):
+        args.put(f"lambda{i}", scene[f"body{i}"]["lame"][0])
+        args.put(f"mu{i}", scene[f"body{i}"]["lame"][1])
+    pins = scene["rigid"]["fix_xy_points"]
+    args.put("pins", int(bool(pins)))       # they act only on a floating body 1
+    for key, value in zip(("fix_ax", "fix_ay", "fix_az", "fix_bx", "fix_by", "fix_bz"), pins):
+        args.put(key, value)
     return args
 
 

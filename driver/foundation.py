@@ -14,80 +14,97 @@ from pathlib import Path
 
 from driver.errors import SceneError
 from driver.materials import young_from_lame
+from driver.scene import SCENE_HEADER
 from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, TableList, at_least, open_interval,
-                           positive, put_adapt)
+                           positive, put_declared)
 
 BOX_LABELS = {"bottom": 1, "right": 2, "top": 3, "left": 4}
 COMPONENT_BITS = {"x": 1, "y": 2, "xy": 3}
 
 SCHEMA = {
     "geometry": {
-        "kind": Field("str", default="box", choices=("box", "gmsh"),
+        "kind": Field("str", derived="meshfile", default="box", choices=("box", "gmsh"),
                       doc="box: FreeFEM square mesh of the box; gmsh: mesh of geometry.geo"),
-        "xmin": Field("float", default=0.0, unit="length", doc="box, left side (kind = box)"),
-        "xmax": Field("float", default=1.0, unit="length", doc="box, right side (> xmin)"),
-        "ymin": Field("float", default=0.0, unit="length", doc="box, bottom"),
-        "ymax": Field("float", default=1.0, unit="length", doc="box, top (> ymin)"),
-        "geo": Field("str", default="", doc="gmsh .geo file (kind = gmsh), relative to the scene"),
+        "xmin": Field("float", flag="xmin", default=0.0, unit="length", doc="box, left side (kind = box)"),
+        "xmax": Field("float", flag="xmax", default=1.0, unit="length", doc="box, right side (> xmin)"),
+        "ymin": Field("float", flag="ymin", default=0.0, unit="length", doc="box, bottom"),
+        "ymax": Field("float", flag="ymax", default=1.0, unit="length", doc="box, top (> ymin)"),
+        "geo": Field("str", derived="meshfile", default="",
+                     doc="gmsh .geo file (kind = gmsh), relative to the scene"),
     },
     "mesh": {
-        "nx": Field("int", default=32, check=positive, doc="elements per unit length (h = 1/nx)"),
+        "nx": Field("int", flag="nx", default=32, check=positive, doc="elements per unit length (h = 1/nx)"),
     },
     "material": {
-        "E": Field("float", default=None, check=positive, unit="stress",
+        "E": Field("float", derived="E nu", default=None, check=positive, unit="stress",
                    doc="Young's modulus (give E and nu, or lambda and mu)"),
-        "nu": Field("float", default=None, check=open_interval(-1.0, 0.5), unit="1", doc="Poisson's ratio (with E)"),
-        "lambda": Field("float", default=None, unit="stress",
+        "nu": Field("float", derived="E nu", default=None, check=open_interval(-1.0, 0.5), unit="1",
+                    doc="Poisson's ratio (with E)"),
+        "lambda": Field("float", derived="E nu", default=None, unit="stress",
                         doc="first Lame coefficient (with mu; the implied nu must lie in (-1, 0.5))"),
-        "mu": Field("float", default=None, check=positive, unit="stress", doc="shear modulus (with lambda)"),
-        "plane": Field("str", default="strain", choices=("strain", "stress"), doc="plane strain or plane stress"),
+        "mu": Field("float", derived="E nu", default=None, check=positive, unit="stress",
+                    doc="shear modulus (with lambda)"),
+        "plane": Field("str", derived="planestress", default="strain", choices=("strain", "stress"),
+                       doc="plane strain or plane stress"),
     },
     "loads": {
-        "body_force": Field("vector", default=[0.0, 0.0], length=2, unit="force/volume", doc="volume force"),
+        "body_force": Field("vector", flag=("fx", "fy"), default=[0.0, 0.0], length=2, unit="force/volume",
+                            doc="volume force"),
     },
     "boundary": TableList({
-        "label": Field("str", doc="bottom/right/top/left for boxes, a physical id for gmsh"),
-        "type": Field("str", choices=("dirichlet", "traction", "contact", "free"),
+        "label": Field("str", derived="dirichlet{i}_label traction{i}_label contact{i}_label",
+                       doc="bottom/right/top/left for boxes, a physical id for gmsh"),
+        "type": Field("str", derived="ndirichlet ntraction ncontact",
+                      choices=("dirichlet", "traction", "contact", "free"),
                       doc="condition on that boundary: displacement, traction, contact with the foundation, none"),
-        "value": Field("vector", default=[0.0, 0.0], length=2, unit="length or force/area",
+        "value": Field("vector", derived="dirichlet{i}_ux dirichlet{i}_uy traction{i}_tx traction{i}_ty",
+                       default=[0.0, 0.0], length=2, unit="length or force/area",
                        doc="imposed displacement (dirichlet) or traction (traction)"),
-        "components": Field("str", default="xy", choices=tuple(COMPONENT_BITS),
+        "components": Field("str", derived="dirichlet{i}_fix", default="xy", choices=tuple(COMPONENT_BITS),
                             doc="displacement components a dirichlet condition fixes"),
     }),
     "point_constraint": TableList({
-        "point": Field("vector", length=2, unit="length", doc="u = 0 at the node lying at this point (to 1e-9)"),
-        "components": Field("str", default="x", choices=tuple(COMPONENT_BITS), doc="components fixed there"),
+        "point": Field("vector", derived="npoint point{i}_x point{i}_y", length=2, unit="length",
+                       doc="u = 0 at the node lying at this point (to 1e-9)"),
+        "components": Field("str", derived="point{i}_fix", default="x", choices=tuple(COMPONENT_BITS),
+                            doc="components fixed there"),
     }),
     "contact": {
-        "foundation_point": Field("vector", default=[0.0, 0.0], length=2, unit="length",
+        "foundation_point": Field("vector", flag=("foundation_px", "foundation_py"), default=[0.0, 0.0], length=2,
+                                  unit="length",
                                   doc="a point of the rigid foundation's boundary line"),
-        "foundation_normal": Field("vector", default=[0.0, 1.0], length=2, unit="1",
+        "foundation_normal": Field("vector", flag=("foundation_nx", "foundation_ny"),
+                                   default=[0.0, 1.0], length=2, unit="1",
                                    doc="normal of that line pointing out of the foundation (non-zero; gap = "
                                        "(x - point).normal)"),
     },
     "method": {
-        "degree": Field("int", default=2, choices=(1, 2), doc="finite element degree (P1 or P2)"),
-        "theta": Field("float", default=-1.0, unit="1",
+        "degree": Field("int", derived="Ddegree", default=2, choices=(1, 2),
+                        doc="finite element degree (P1 or P2)"),
+        "theta": Field("float", flag="theta", default=-1.0, unit="1",
                        doc="Nitsche variant: 1 symmetric, 0 non-symmetric, -1 skew-symmetric (any real)"),
-        "gamma0": Field("float", default=1.0, check=positive, unit="1",
+        "gamma0": Field("float", flag="gamma0", default=1.0, check=positive, unit="1",
                         doc="gamma = gamma0 h_K / E (gamma_scaling young)"),
-        "gamma_scaling": Field("str", default="young", choices=("young", "none"),
+        "gamma_scaling": Field("str", flag="gamma_scaling", default="young", choices=("young", "none"),
                                doc="young: gamma = gamma0 h_K / E (gamma0 dimensionless); "
                                    "none: gamma = gamma0 h_K (gamma0 in 1/stress)"),
     },
     "solver": {
-        "newton_tol": Field("float", default=1e-9, check=positive, unit="1",
+        "newton_tol": Field("float", flag="newton_tol", default=1e-9, check=positive, unit="1",
                             doc="Newton stops when the relative residual is below this and the active set is stable"),
-        "newton_max": Field("int", default=30, check=at_least(1), doc="Newton iteration limit (then exit 3)"),
+        "newton_max": Field("int", flag="newton_max", default=30, check=at_least(1),
+                            doc="Newton iteration limit (then exit 3)"),
     },
     "adapt": ADAPT_SCHEMA,
     "reference": {
-        "folder": Field("str", default="", doc="a run saved with output.save_solution (P2): errors against it"),
+        "folder": Field("str", derived="reference", default="",
+                        doc="a run saved with output.save_solution (P2): errors against it"),
     },
     "output": {
-        "vtu": Field("bool", default=True, doc="write fields.vtu"),
-        "pressure_csv": Field("bool", default=True, doc="write contact_pressure.csv (when a boundary has contact)"),
-        "save_solution": Field("bool", default=False, doc="write mesh.msh and u.txt (a reference)"),
+        "vtu": Field("bool", flag="vtu", default=True, doc="write fields.vtu"),
+        "pressure_csv": Field("bool", flag="csv", default=True,
+                              doc="write contact_pressure.csv (when a boundary has contact)"),
+        "save_solution": Field("bool", flag="save", default=False, doc="write mesh.msh and u.txt (a reference)"),
     },
 }
 
@@ -142,29 +159,15 @@ def label_id(label, kind, where):
 
 
 def freefem_args(scene, mesh_file=""):
-    """Command-line flags of contact_foundation_2d.edp for this scene."""
-    geo, mat, meth = scene["geometry"], scene["material"], scene["method"]
-    args = FreeFemFlags([f"-Ddegree={meth['degree']}"])
+    """The script's flags: every key the schema declares, then the values derived here."""
+    mat = scene["material"]
+    args = FreeFemFlags([f"-Ddegree={scene['method']['degree']}"])
     put = args.put
-
-    put("name", scene["scene"]["name"])
+    put_declared(args, scene, dict(scene=SCENE_HEADER, **SCHEMA))
     put("meshfile", mesh_file)
-    for key in ("xmin", "xmax", "ymin", "ymax"):
-        put(key, geo[key])
-    put("nx", scene["mesh"]["nx"])
     put("E", mat["E"])
     put("nu", mat["nu"])
     put("planestress", int(mat["plane"] == "stress"))
-    put("fx", scene["loads"]["body_force"][0])
-    put("fy", scene["loads"]["body_force"][1])
-    put("theta", meth["theta"])
-    put("gamma0", meth["gamma0"])
-    put("gamma_scaling", meth["gamma_scaling"])
-    fp, fn = scene["contact"]["foundation_point"], scene["contact"]["foundation_normal"]
-    put("foundation_px", fp[0])
-    put("foundation_py", fp[1])
-    put("foundation_nx", fn[0])
-    put("foundation_ny", fn[1])
     by_type = {t: [bc for bc in scene["boundary"] if bc["type"] == t]
                for t in ("dirichlet", "traction", "contact")}
     put("ndirichlet", len(by_type["dirichlet"]))
@@ -186,14 +189,8 @@ def freefem_args(scene, mesh_file=""):
         put(f"point{i}_x", pc["point"][0])
         put(f"point{i}_y", pc["point"][1])
         put(f"point{i}_fix", COMPONENT_BITS[pc["components"]])
-    put("newton_tol", scene["solver"]["newton_tol"])
-    put("newton_max", scene["solver"]["newton_max"])
-    put_adapt(args, scene["adapt"])
     if scene["reference"]["folder"]:
         put("reference", scene["reference"]["folder"])
-    put("save", int(scene["output"]["save_solution"]))
-    put("vtu", int(scene["output"]["vtu"]))
-    put("csv", int(scene["output"]["pressure_csv"]))
     return args
 
 

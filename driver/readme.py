@@ -312,6 +312,14 @@ Units: any consistent system. The unit column names the dimension: `length`,
 counts, switches and names. The shipped scenes are written in units of the
 material (Lame 1, 1) or in Pa and m. A default `none` means "not set": each body
 needs either `lambda` and `mu` or `E` and `nu`.
+
+The FreeFEM flag column is where a key goes on a direct run (`FreeFem++ -nw
+freefem/SCRIPT.edp -flag value`): the driver sends every key that names a flag
+under that name, and derives the flags of the others (Lame coefficients from E
+and nu, the pins, per-boundary flags); `-Ddegree` is a macro define and comes
+first. Keys without a flag reach the script through the run's scene module
+(`docs/scene-modules.md`). `tests/test_defaults.py` checks that the flags sent
+are exactly these and the keys the script reads.
 """
 
 
@@ -352,6 +360,16 @@ def field_range(field):
     return "; ".join(parts) or "any"
 
 
+def field_flags(field):
+    """The flag column: the flag carrying the key as is, or (derived) the flags made from it."""
+    if field.flag:
+        names = field.flag if isinstance(field.flag, tuple) else (field.flag,)
+        return ", ".join(f"`-{name}`" for name in names)
+    if field.derived:
+        return "from it: " + ", ".join(f"`-{name}`" for name in field.derived.split())
+    return ""
+
+
 def schema_rows(schema, prefix=""):
     """(dotted key, Field) for every key of a schema, in schema order."""
     for key, spec in schema.items():
@@ -378,10 +396,11 @@ def scene_reference():
     for script, title in SCRIPT_TITLES:
         module = modules[script]
         lines = [f"## `{script}`: {title}", "", module.__doc__.strip(), "",
-                 "| key | type | unit | default | range | meaning |", "|---|---|---|---|---|---|"]
+                 "| key | type | unit | default | range | FreeFEM flag | meaning |",
+                 "|---|---|---|---|---|---|---|"]
         for key, field in schema_rows(script_schema(module)):
             cells = (f"`{key}`", field_type(field), field.unit, format_value(field.default), field_range(field),
-                     field.doc)
+                     field_flags(field), field.doc)
             lines.append("| " + " | ".join(markdown_cell(c) for c in cells) + " |")
         parts.append("\n".join(lines) + "\n")
     parts.append(shapes_reference())

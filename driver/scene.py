@@ -24,7 +24,7 @@ def safe_name(value):
 
 
 SCENE_HEADER = {
-    "name": Field("str", check=safe_name, doc="scene name, used for run folders"),
+    "name": Field("str", flag="name", check=safe_name, doc="scene name, used for run folders"),
     "script": Field("str", doc="FreeFEM top-level script (without .edp) that solves the scene: fd_contact_2d, "
                                "fd_contact_3d or contact_foundation_2d"),
     "description": Field("str", default="", doc="free text, kept in scene.json"),

@@ -13,7 +13,8 @@ REQUIRED = object()
 class Field:
     """One scalar or vector entry of a scene table."""
 
-    def __init__(self, kind, default=REQUIRED, check=None, choices=None, length=None, doc="", unit=""):
+    def __init__(self, kind, default=REQUIRED, check=None, choices=None, length=None, doc="", unit="",
+                 flag=None, derived=None):
         self.kind = kind            # "float", "int", "str", "bool", "vector"; "tree": a table or list
                                     # checked by its own reader (shapes, supports: driver/scene_module.py)
         self.default = default
@@ -22,6 +23,8 @@ class Field:
         self.length = length        # for vectors
         self.doc = doc              # one line for the scene reference (docs/scenes.md)
         self.unit = unit            # dimension in a consistent unit system ("1": dimensionless)
+        self.flag = flag            # the script's flag carrying the value as is (a tuple: one per component)
+        self.derived = derived      # or the flags the script module derives from it ("lambda1 mu1")
 
     def coerce(self, value, where):
         kind = self.kind
@@ -134,21 +137,49 @@ class FreeFemFlags(list):
         self.extend([f"-{key}", repr(value) if isinstance(value, float) else str(value)])
 
 
+def put_declared(flags, scene, schema):
+    """Send every key of the schema that declares a flag, in schema order (booleans as 0/1)."""
+    for key, spec in schema.items():
+        if isinstance(spec, dict):
+            put_declared(flags, scene[key], spec)
+        elif isinstance(spec, Field) and spec.flag:
+            names, values = ((spec.flag, scene[key]) if isinstance(spec.flag, tuple)
+                             else ((spec.flag,), (scene[key],)))
+            for name, value in zip(names, values):
+                flags.put(name, int(value) if isinstance(value, bool) else value)
+
+
+def schema_flags(schema):
+    """Every flag a schema names, declared or derived (the set the driver may send)."""
+    names = set()
+    for key, spec in schema.items():
+        if isinstance(spec, dict):
+            names |= schema_flags(spec)
+        elif isinstance(spec, TableList):
+            names |= schema_flags(spec.schema)
+        elif spec.flag:
+            names |= set(spec.flag) if isinstance(spec.flag, tuple) else {spec.flag}
+        if isinstance(spec, Field) and spec.derived:
+            names |= set(spec.derived.split())
+    return names
+
+
 def two_body_solver_schema(floating_body, contact_points):
     """The [solver] keys of the two-body scripts (2D and 3D): semi-smooth Newton and its start."""
     return {
-        "newton_tol": Field("float", default=1e-9, check=positive, unit="1",
+        "newton_tol": Field("float", flag="newton_tol", default=1e-9, check=positive, unit="1",
                             doc="Newton stops when the relative nonlinear residual is below this and the "
                                 "active set is stable"),
-        "newton_max": Field("int", default=30, check=at_least(1), doc="Newton iteration limit (then exit 3)"),
+        "newton_max": Field("int", flag="newton_max", default=30, check=at_least(1),
+                            doc="Newton iteration limit (then exit 3)"),
         "contact_points": contact_points,
-        "active0": Field("float", default=0.1, check=at_least(0.0), unit="1",
+        "active0": Field("float", flag="active0", default=0.1, check=at_least(0.0), unit="1",
                          doc="first active set: gap <= active0 * h (then a secant predictor)"),
-        "predictor_steps": Field("int", default=4, check=at_least(0),
+        "predictor_steps": Field("int", flag="predictor_steps", default=4, check=at_least(0),
                                  doc="Newton steps of the secant predictor on the active measure"),
-        "refactor_points": Field("int", default=12, check=at_least(0),
+        "refactor_points": Field("int", flag="refactor_points", default=12, check=at_least(0),
                                  doc="re-use the factorization (GMRES) when fewer points changed"),
-        "allow_unbalanced": Field("bool", default=False,
+        "allow_unbalanced": Field("bool", flag="allow_unbalanced", default=False,
                                   doc=f"keep a run whose pins or mass term carry more than 1e-6 of the "
                                       f"{floating_body}'s load (flagged in results.json 'balance'); refused "
                                       f"(exit 3) otherwise"),
@@ -157,20 +188,16 @@ def two_body_solver_schema(floating_body, contact_points):
 
 # Estimator-driven adaptation, the same keys for every script that adapts.
 ADAPT_SCHEMA = {
-    "steps": Field("int", default=0, check=at_least(0),
+    "steps": Field("int", flag="adapt_steps", default=0, check=at_least(0),
                    doc="mesh adaptations after the first solve, each followed by a new solve (0: none)"),
-    "growth": Field("float", default=2.0, check=positive, unit="1", doc="wanted element-count growth per step"),
-    "max_dofs": Field("int", default=200000, check=positive,
+    "growth": Field("float", flag="adapt_growth", default=2.0, check=positive, unit="1",
+                    doc="wanted element-count growth per step"),
+    "max_dofs": Field("int", flag="adapt_max_dofs", default=200000, check=positive,
                       doc="DOF budget: no adaptation step whose mesh would exceed it (growth x DOFs)"),
-    "eta_target": Field("float", default=0.0, check=at_least(0.0), unit="as eta",
+    "eta_target": Field("float", flag="adapt_eta_target", default=0.0, check=at_least(0.0), unit="as eta",
                         doc="stop once the estimator eta <= this (0: run every step)"),
-    "max_refine": Field("float", default=4.0, check=at_least(1.0), unit="1",
+    "max_refine": Field("float", flag="adapt_max_refine", default=4.0, check=at_least(1.0), unit="1",
                         doc="an element's size shrinks at most by this factor per step"),
-    "max_coarsen": Field("float", default=2.0, check=at_least(1.0), unit="1",
+    "max_coarsen": Field("float", flag="adapt_max_coarsen", default=2.0, check=at_least(1.0), unit="1",
                          doc="an element's size grows at most by this factor per step"),
 }
-
-
-def put_adapt(flags, adapt):
-    for key in ADAPT_SCHEMA:
-        flags.put(f"adapt_{key}", adapt[key])

@@ -7,11 +7,15 @@ defaults computes the default scene). Keys only a direct run uses are listed her
 by name: a new script key must either be reachable from a scene or be added below.
 """
 
+import json
+import re
 import subprocess
 
 import pytest
 
+from driver.readme import script_schema
 from driver.scene import load_scene
+from driver.schema import schema_flags
 from tests.conftest import REPO
 
 DIRECT_ONLY = {
@@ -19,10 +23,8 @@ DIRECT_ONLY = {
     "common": {"outdir", "list_options"},
     # the adaptation's largest element (defaults to the initial step)
     "fd_contact_2d": {"adapt_hmax"},
-    # points per interface triangle (default by degree), the centre-cut plane,
-    # grading toward the contact point (sent when mesh.grade_h > 0)
-    "fd_contact_3d": {"contact_qp", "cut_y", "grade_h", "grade_radius", "grade_slope",
-                      "grade_x", "grade_y", "grade_z"},
+    # the centre-cut plane, the grading point (sent when mesh.grade_h > 0)
+    "fd_contact_3d": {"cut_y", "grade_x", "grade_y", "grade_z"},
     # errors against a saved reference (sent when reference.folder is set) and its self-test shift
     "contact_foundation_2d": {"reference", "error_shift_x", "error_shift_y"},
 }
@@ -68,9 +70,22 @@ def test_driver_flags_are_the_script_keys_with_the_scene_as_default(case):
     assert not_sent == DIRECT_ONLY["common"] | DIRECT_ONLY[script]
 
 
-def test_3d_direct_run_defaults_to_p1_as_its_scene():
-    """contact_qp's default is 3 points per interface triangle for P1, 6 for P2."""
-    proc = subprocess.run(["FreeFem++", "-nw", "-v", "0", "freefem/fd_contact_3d.edp", "-list_options", "1"],
-                          cwd=REPO, capture_output=True, text=True)
-    assert "contact_qp=3 " in proc.stdout
-    assert script_options("fd_contact_3d", 2)["contact_qp"] == "6"
+@pytest.mark.parametrize("case", SCENES + ["cases/punch.toml", "cases/sphere_on_sphere.toml"])
+def test_every_flag_sent_is_named_by_the_schema(case):
+    """One source of names: a flag the driver sends is declared (or derived) by a schema key."""
+    scene, module = load_scene(REPO / case)
+    named = schema_flags(script_schema(module))
+    patterns = [re.compile(re.escape(name).replace(r"\{i\}", r"\d+") + "$") for name in named]
+    sent = module.freefem_args(scene)[1::2]
+    assert [flag for flag in sent if not any(p.match(flag[1:]) for p in patterns)] == []
+
+
+def test_3d_contact_points_follow_the_degree_by_default(tmp_path):
+    """contact_qp 0 (the scene default) means 3 points per interface triangle for P1, 6 for P2."""
+    for degree, points in ((1, 3), (2, 6)):
+        out = tmp_path / f"p{degree}"
+        proc = subprocess.run(["FreeFem++", "-nw", "-v", "0", "freefem/fd_contact_3d.edp", f"-Ddegree={degree}",
+                               "-nx", "4", "-estimators", "0", "-vtu", "0", "-csv", "0", "-outdir", str(out)],
+                              cwd=REPO, capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+        assert json.loads((out / "results.json").read_text())["contact_points"] == points
