@@ -23,7 +23,7 @@ import numpy as np
 
 from driver.errors import SceneError
 from driver.materials import body_lame
-from driver.scene_module import Bodies, fill_legacy, legacy_probe, legacy_supports
+from driver.scene_module import Bodies, fill_legacy, legacy_probe, legacy_supports, support_lines
 from driver.scene_module import scene_module  # noqa: F401  (the runner calls module.scene_module)
 from driver.scene import SCENE_HEADER
 from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_declared,
@@ -225,7 +225,8 @@ def summary_lines(results):
     return lines + [
         f"bodies: {results['dofs_body1']} + {results['dofs_body2']} DOFs on the cut spaces, "
         f"areas {results['areas']['body1']:.6g} and {results['areas']['body2']:.6g}",
-    ] + [f"probe {name}: displacement ({u[0]:.6g}, {u[1]:.6g})" for name, u in results.get("probes", {}).items()] + [
+    ] + [f"probe {name}: displacement ({u[0]:.6g}, {u[1]:.6g})"
+         for name, u in results.get("probes", {}).items()] + support_lines(results) + [
         f"contact: active length {contact['active_length']:.4g} of {contact['boundary_length']:.4g}, "
         f"force on body 1 ({contact['force_on_body1'][0]:.4g}, {contact['force_on_body1'][1]:.6g}), "
         f"balance error {contact['force_balance_error']:.1e}, max pressure {contact['max_pressure']:.4g}",

@@ -25,7 +25,7 @@ import numpy as np
 from driver.errors import SceneError
 from driver.fd2d import body_schema
 from driver.materials import body_lame
-from driver.scene_module import Bodies, fill_legacy, legacy_probe, legacy_supports
+from driver.scene_module import Bodies, fill_legacy, legacy_probe, legacy_supports, support_lines
 from driver.scene_module import scene_module  # noqa: F401  (the runner calls module.scene_module)
 from driver.scene import SCENE_HEADER
 from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_declared,
@@ -231,7 +231,7 @@ def summary_lines(results):
         f"bodies: {results['dofs_body1']} + {results['dofs_body2']} DOFs on the cut spaces, "
         f"volumes {results['volumes']['body1']:.6g} and {results['volumes']['body2']:.6g}",
     ] + [f"probe {name}: displacement ({u[0]:.3g}, {u[1]:.3g}, {u[2]:.6g})"
-         for name, u in results.get("probes", {}).items()] + [
+         for name, u in results.get("probes", {}).items()] + support_lines(results) + [
         f"contact: active area {contact['active_area']:.4g} of {contact['boundary_area']:.4g}, "
         f"force on body 1 ({force[0]:.3g}, {force[1]:.3g}, {force[2]:.6g}), "
         f"balance error {contact['force_balance_error']:.1e}, max pressure {contact['max_pressure']:.4g}",

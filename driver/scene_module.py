@@ -286,6 +286,11 @@ class Bodies:
             for p, test in reversed(list(zip(parts, inside))):
                 expr = f"({test} ? {fmt(p[value_key][n])} : {expr})"
             out.append(f"macro {kind}Cut{i}{letter}{c}({point}) {expr} //")
+        if kind == "hold":      # which hold a point belongs to: its reaction (results.json reactions.by_support)
+            region = "0"
+            for r, test in reversed(list(enumerate(inside, start=1))):
+                region = f"({test} ? {r} : {region})"
+            out += [f"int holdCutCount{i} = {len(parts)};", f"macro holdCut{i}Region({point}) {region} //"]
         return out
 
     # ------------------------------------------------------------ facts for the driver
@@ -340,3 +345,10 @@ def legacy_supports(scene, dim):
                           "displacement": [0.0, 0.0]}]
     else:
         body2["hold"] = [{"face": "ymin" if dim == 2 else "zmin", "displacement": [0.0] * dim}]
+
+
+def support_lines(results):
+    """Summary lines: the force of each support on its body (results.json reactions.by_support)."""
+    by_support = results.get("reactions", {}).get("by_support", {})
+    return [f"support {name}: reaction ({', '.join(f'{v:.4g}' for v in force)})"
+            for name, force in by_support.items()]

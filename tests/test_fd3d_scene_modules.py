@@ -52,6 +52,9 @@ def cut_macros(body, kind, region=None, values=("0.", "0.", "0.")):
     letter = "U" if kind == "hold" else "T"
     lines = [f"int {kind}CutAny{body} = {1 if region else 0};", f"macro {kind}Cut{body}(px, py, pz) {region or '0'} //"]
     lines += [f"macro {kind}Cut{body}{letter}{c}(px, py, pz) {v} //" for c, v in zip("xyz", values)]
+    if kind == "hold":
+        lines += [f"int holdCutCount{body} = {1 if region else 0};",
+                  f"macro holdCut{body}Region(px, py, pz) {f'(({region}) ? 1 : 0)' if region else '0'} //"]
     return lines
 
 

@@ -308,3 +308,24 @@ def test_gmsh_geometry_that_runs_programs_is_refused(tmp_path):
     assert proc.returncode == 2
     assert "refused" in proc.stderr
     assert not (tmp_path / "PWNED").exists() and not (REPO / "PWNED").exists()
+
+
+def test_reactions_per_support_add_up_to_each_body(run_scene):
+    """results.json reactions.by_support: the punch's top face, and the slab held on the
+    box bottom and by Nitsche on both ends of its top (two regions). The supports of a
+    body add up to its reaction (to round-off), the two ends are mirror images (to the
+    mesh's asymmetry: measured 3 % at nx = 41) and both bodies' reactions balance."""
+    holds = ('body2.hold=[{ face = "ymin" }, '
+             '{ region = { type = "box", min = [-0.6, -0.1], max = [-0.35, 0.1] } }, '
+             '{ region = { type = "box", min = [0.35, -0.1], max = [0.6, 0.1] } }]')
+    r = run_scene("cases/punch.toml", *QUIET, "mesh.nx=41", holds).results
+    by = r["reactions"]["by_support"]
+    assert set(by) == {"body1 face ymax", "body2 face ymin", "body2 region 1", "body2 region 2"}
+    assert by["body1 face ymax"] == pytest.approx(r["reactions"]["body1"], rel=1e-12, abs=1e-15)
+    body2 = np.sum([by[k] for k in by if k.startswith("body2")], axis=0)
+    assert body2 == pytest.approx(r["reactions"]["body2"], rel=1e-9, abs=1e-14)
+    left, right = np.array(by["body2 region 1"]), np.array(by["body2 region 2"])
+    assert abs(left[1]) > 0.02 * abs(r["reactions"]["body2"][1])
+    assert left[0] == pytest.approx(-right[0], rel=0.1) and left[1] == pytest.approx(right[1], rel=0.1)
+    total = np.add(r["reactions"]["body1"], r["reactions"]["body2"])
+    assert np.abs(total).max() < 1e-8 * abs(r["reactions"]["body1"][1])

@@ -2,6 +2,7 @@
 
 import math
 
+import numpy as np
 import pytest
 
 from tests.conftest import REPO, run_cli
@@ -42,3 +43,19 @@ def test_default_3d_scene_module_is_the_generated_one():
     proc = run_cli("scene-module", "cases/ball_on_slab.toml")
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout == (REPO / "freefem/lib/fd3d/scene_default.idp").read_text()
+
+
+def test_reactions_per_support_add_up_to_each_body(run_scene):
+    """results.json reactions.by_support in 3D: the slab held on the box bottom (z only),
+    on the box side xmin (every component) and by Nitsche on a region of its top; the
+    supports add up to the slab's reaction, which balances the ball's weight."""
+    holds = ('body2.hold=[{ face = "zmin", components = "z" }, { face = "xmin" }, '
+             '{ region = { type = "box", min = [0.3, -0.6, -0.35], max = [0.6, 0.6, -0.15] } }]')
+    r = run_scene("cases/ball_on_slab.toml", *QUIET, "mesh.nx=8", holds).results
+    by = r["reactions"]["by_support"]
+    assert set(by) == {"body2 face zmin", "body2 face xmin", "body2 region 1"}
+    body2 = np.sum(list(by.values()), axis=0)
+    assert body2 == pytest.approx(r["reactions"]["body2"], rel=1e-9, abs=1e-14)
+    assert all(abs(by[k][2]) > 1e-3 * abs(body2[2]) for k in by)
+    weight = r["contact"]["force_on_body1"][2]
+    assert body2[2] == pytest.approx(weight, rel=1e-6)
