@@ -329,3 +329,16 @@ def test_reactions_per_support_add_up_to_each_body(run_scene):
     assert left[0] == pytest.approx(-right[0], rel=0.1) and left[1] == pytest.approx(right[1], rel=0.1)
     total = np.add(r["reactions"]["body1"], r["reactions"]["body2"])
     assert np.abs(total).max() < 1e-8 * abs(r["reactions"]["body1"][1])
+
+
+def test_held_body_touching_nothing_carries_its_load_by_its_hold(run_scene):
+    """A clamped punch 0.005 above the slab with its own weight: nothing touches, each
+    body's holds carry its load, and the balance (relative to the load, not to the
+    load-plus-reaction that cancels) passes instead of refusing the run."""
+    r = run_scene("cases/punch.toml", *QUIET, "mesh.nx=41", "body1.hold=[{ face = \"ymax\" }]",
+                  "body1.shape={ type = \"box\", min = [-0.15, 0.005], max = [0.15, 0.6], corner_radius = 0.05 }",
+                  "body1.body_force=[0.0, -0.1]", "body2.body_force=[0.1, -0.1]").results
+    assert r["contact"]["force_on_body1"] == [0, 0]
+    assert r["balance"]["balance_error"] < 1e-12 and r["contact"]["force_balance_error"] < 1e-12
+    assert r["reactions"]["body1"][1] == pytest.approx(0.1 * r["areas"]["body1"], rel=1e-10)
+    assert r["reactions"]["body2"] == pytest.approx([-0.1 * r["areas"]["body2"], 0.1 * r["areas"]["body2"]], rel=1e-10)

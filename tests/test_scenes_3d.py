@@ -59,3 +59,14 @@ def test_reactions_per_support_add_up_to_each_body(run_scene):
     assert all(abs(by[k][2]) > 1e-3 * abs(body2[2]) for k in by)
     weight = r["contact"]["force_on_body1"][2]
     assert body2[2] == pytest.approx(weight, rel=1e-6)
+
+
+def test_held_body_touching_nothing_carries_its_load_by_its_hold(run_scene):
+    """The ball 0.05 above the slab, held by Nitsche on its top cap: nothing touches, the
+    cap's hold carries the ball's weight and the run passes the balance gate."""
+    r = run_scene("cases/ball_on_slab.toml", *QUIET, "mesh.nx=8", "body1.centre=[0.0, 0.0, 0.05]",
+                  "body1.hold=[{ region = { type = \"half_space\", point = [0.0, 0.0, 0.2], normal = [0.0, 0.0, -1.0] } }]",
+                  "rigid.fix_xy_points=[]").results
+    assert r["contact"]["force_on_body1"] == [0, 0, 0]
+    assert r["balance"]["balance_error"] < 1e-12 and r["contact"]["force_balance_error"] < 1e-12
+    assert r["reactions"]["body1"][2] == pytest.approx(0.1 * r["volumes"]["body1"], rel=1e-8)
