@@ -116,3 +116,12 @@ sweep: setup
 # medians and their ratio in results/sweep_bench.csv (run on an idle machine).
 sweep-bench: setup
 	$(PYTHON) -m driver sweep-bench $(SWEEP) --repeats 3
+
+# Figures of one run folder, written into it (docs/outputs.md):
+# make plot RUN=runs/NAME-TIME-HASH [PLANE=y=0] (PLANE: 3D cut, default through the contact)
+RUN ?=
+PLANE ?=
+.PHONY: plot
+plot: setup-python
+	@if [ -z "$(RUN)" ]; then echo "error: make plot needs RUN=<run folder>, e.g. RUN=runs/NAME-TIME-HASH" >&2; exit 2; fi
+	$(PYTHON) -m driver plot "$(RUN)" $(if $(strip $(PLANE)),--plane "$(PLANE)")

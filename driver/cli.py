@@ -1,4 +1,4 @@
-"""Command line: python -m driver run SCENE [--set key=value ...], scene-module, study, sweep, readme."""
+"""Command line: python -m driver run SCENE [--set key=value ...], scene-module, study, sweep, plot, readme."""
 
 import argparse
 import re
@@ -69,6 +69,14 @@ def cmd_study(args):
     return 0
 
 
+def cmd_plot(args):
+    from driver.plot import plot_run
+
+    for path in plot_run(args.run, plane=args.plane, scale=args.scale):
+        print(path)
+    return 0
+
+
 def cmd_readme(args):
     from driver.readme import update
 
@@ -104,6 +112,11 @@ def build_parser():
     from driver.sweep import add_parser as add_sweep_parsers
 
     add_sweep_parsers(sub)
+    plot = sub.add_parser("plot", help="figures of a run folder (PNG files written into it, docs/outputs.md)")
+    plot.add_argument("run", help="run folder, e.g. runs/NAME-TIME-HASH")
+    plot.add_argument("--plane", help="3D: the cut plane AXIS=VALUE, e.g. y=0 (default: y through the contact)")
+    plot.add_argument("--scale", type=float, default=1.0, help="displacement magnification (default 1)")
+    plot.set_defaults(func=cmd_plot)
     readme = sub.add_parser("readme", help="refill the generated tables of README.md and docs/*.md from "
                                            "results/*.csv and write docs/scenes.md from the schemas")
     readme.set_defaults(func=cmd_readme)
