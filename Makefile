@@ -25,8 +25,12 @@ setup-system:
 	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $(DEBIAN_PACKAGES) >/dev/null; \
 	fi
 
+# find_spec locates each package without importing it (importing them all costs
+# about 1.3 s, paid on every make case).
+PYTHON_PACKAGES := numpy pandas matplotlib meshio pytest scipy dask distributed
 setup-python:
-	@if ! $(PYTHON) -c "import numpy, pandas, matplotlib, meshio, pytest, scipy, dask, distributed" 2>/dev/null; then \
+	@if ! $(PYTHON) -c "import importlib.util as u, sys; sys.exit(any(u.find_spec(m) is None for m in sys.argv[1:]))" \
+	    $(PYTHON_PACKAGES) 2>/dev/null; then \
 	  echo "installing Python packages from requirements.txt"; \
 	  $(PYTHON) -m pip install -q -r requirements.txt; \
 	fi
