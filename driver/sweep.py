@@ -111,7 +111,7 @@ def canonical_overrides(overrides):
 
 
 def toml_literal(value):
-    """A value as the TOML literal that --set parses back to the same value."""
+    """A value as the TOML literal that --set parses back to the same value (tables inline)."""
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, int):
@@ -126,7 +126,9 @@ def toml_literal(value):
         return json.dumps(value)
     if isinstance(value, list):
         return "[" + ", ".join(toml_literal(v) for v in value) + "]"
-    raise SceneError(f"value {value!r}: not a TOML scalar or list")
+    if isinstance(value, dict):      # an inline table: a shape, a hold, a load
+        return "{ " + ", ".join(f"{json.dumps(k)} = {toml_literal(v)}" for k, v in value.items()) + " }"
+    raise SceneError(f"value {value!r}: not a TOML value")
 
 
 def portable(path):

@@ -205,3 +205,18 @@ def test_smoke_sweep_file_expands_to_twelve_points():
     sweep = load_sweep(REPO / "cases" / "sweeps" / "smoke.toml")
     assert len(sweep.params) == 12
     assert len({tuple(sorted(p.items())) for p in sweep.params}) == 12
+
+
+@pytest.mark.parametrize("value", [
+    [{"face": "ymax", "displacement": [0.0, -0.004]}],
+    {"type": "difference", "of": [{"type": "disk", "centre": [0.0, 0.0], "radius": 0.25},
+                                  {"type": "box", "min": [-0.1, -0.1], "max": [0.1, 0.1], "corner_radius": 0.02}]},
+    [1, 2.5e-3, "a \"quoted\" name", True, float("inf")],
+])
+def test_sweep_values_may_be_tables(value):
+    """A sweep varies supports and shapes too (an indentation depth, a hole's size): a
+    grid value is written as the --set literal that parses back to the same value."""
+    from driver.scene import parse_override
+    from driver.sweep import toml_literal
+
+    assert parse_override("body1.hold=" + toml_literal(value)) == (["body1", "hold"], value)
