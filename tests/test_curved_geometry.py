@@ -1,0 +1,69 @@
+"""Curved cut geometry (-geometry curved, freefem/lib/fd2d/curved.idp; docs/curved-geometry.md).
+
+The bounds sit a little above what was measured (the figures in the comments, from
+the commands named there), so that a regression of the geometry shows at once.
+"""
+
+import json
+import math
+
+import pandas as pd
+import pytest
+
+from tests.conftest import REPO, run_freefem
+
+# Disk-centre u_y of the disk on slab, P2, theta = -1, gamma0 = 1/200, curved geometry,
+# NX = 320 (python3 freefem/tools/curved_convergence.py, results/curved_convergence.csv).
+CENTRE_UY_REF = -1.833891860157e-02
+
+
+def solve(tmp_path, nx, geometry="curved", *extra):
+    out = tmp_path / f"{geometry}_{nx}"
+    proc = run_freefem("fd_contact_2d.edp", "-nx", nx, "-geometry", geometry, "-estimators", 0,
+                       "-vtu", 0, "-csv", 0, "-outdir", out, *extra)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return json.loads((out / "results.json").read_text())
+
+
+def test_disk_area_perimeter_and_integral_at_nx20(tmp_path):
+    # FreeFem++ -nw -v 0 freefem/tools/curved_geometry_check.edp (results/curved_geometry.csv)
+    csv = tmp_path / "geometry.csv"
+    proc = run_freefem("tools/curved_geometry_check.edp", "-levels", 1, "-out", csv)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    rows = pd.read_csv(csv).set_index(["disk", "geometry"])
+    scene, offgrid = rows.loc[("scene_disk", "curved")], rows.loc[("offgrid_disk", "curved")]
+    assert abs(scene["area_rel_err"]) < 5e-7            # measured 2.2e-7 (12 vertices on the circle)
+    assert abs(offgrid["area_rel_err"]) < 5e-7          # 2.3e-7
+    assert abs(scene["perimeter_rel_err"]) < 2e-8       # -4.9e-9
+    assert abs(offgrid["perimeter_rel_err"]) < 2e-8     # -2.8e-9
+    assert abs(scene["poly_rel_err"]) < 1e-6            # 3.4e-7
+    assert abs(offgrid["poly_rel_err"]) < 5e-6          # 1.5e-6
+    assert scene["fallback"] == 0 and offgrid["fallback"] == 0
+    # the P1 polygon, for scale: -7.1e-3 and -5.8e-3
+    assert abs(rows.loc[("scene_disk", "p1")]["area_rel_err"]) > 5e-3
+
+
+def test_solver_reports_the_curved_areas(tmp_path):
+    r = solve(tmp_path, 20)
+    areas = r["areas"]
+    assert abs(areas["body1"] - areas["body1_exact"]) / areas["body1_exact"] < 5e-7   # measured 2.2e-7
+    assert areas["body2"] == pytest.approx(0.25, rel=1e-12)
+    assert r["newton"]["residual"][-1] < 1e-8
+
+
+def test_p1_geometry_stays_available(tmp_path):
+    r = solve(tmp_path, 20, "p1")
+    areas = r["areas"]
+    assert (areas["body1"] - areas["body1_exact"]) / areas["body1_exact"] == pytest.approx(-7.07e-3, rel=1e-2)
+
+
+def test_p2_ladder_converges_on_the_curved_geometry(tmp_path):
+    # Centre u_y at NX = 20, 40, 80 against NX = 160 (all curved, P2): errors and rate.
+    u = {nx: solve(tmp_path, nx)["probes"]["centre"][1] for nx in (20, 40, 80, 160)}
+    err = {nx: abs(u[nx] - u[160]) / abs(u[160]) for nx in (20, 40, 80)}
+    rates = [math.log2(err[20] / err[40]), math.log2(err[40] / err[80])]
+    # measured: errors 2.4e-3, 7.4e-4, 2.0e-4; rates 1.70, 1.86
+    assert min(rates) > 1.5, (err, rates)
+    # NX = 80 against the NX = 320 reference: the issue's target is 0.03 % (P1 geometry: 0.22 %)
+    assert abs(u[80] - CENTRE_UY_REF) / abs(CENTRE_UY_REF) < 2.6e-4   # measured 2.29e-4
+
