@@ -64,6 +64,6 @@ def test_p2_ladder_converges_on_the_curved_geometry(tmp_path):
     rates = [math.log2(err[20] / err[40]), math.log2(err[40] / err[80])]
     # measured: errors 2.4e-3, 7.4e-4, 2.0e-4; rates 1.70, 1.86
     assert min(rates) > 1.5, (err, rates)
-    # NX = 80 against the NX = 320 reference: the target is 0.03 % (P1 geometry: 0.22 %)
+    # NX = 80 against the NX = 320 reference: the target is 0.03 % (P1 geometry: 0.22 %)
     assert abs(u[80] - CENTRE_UY_REF) / abs(CENTRE_UY_REF) < 2.6e-4   # measured 2.29e-4
 
