@@ -56,7 +56,8 @@ class Shape:
         if self.rotation is None:
             return coords
         r = self.rotation
-        return ["(" + " + ".join(f"{fmt(r[k][i])}*{coords[k]}" for k in range(self.dim)) + ")"
+        # each coordinate in parentheses: a macro argument may be an expression (qx[q] + t*nx)
+        return ["(" + " + ".join(f"{fmt(r[k][i])}*({coords[k]})" for k in range(self.dim)) + ")"
                 for i in range(self.dim)]
 
     def phi(self, *pts):

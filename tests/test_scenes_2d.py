@@ -168,6 +168,45 @@ def test_contact_projection_is_the_closest_point_on_an_ellipse(tmp_path, run_sce
     assert np.abs(foot - exact).max() > 1e-4     # the old projection was measurably off
 
 
+
+DISK_ON_ROTATED_ELLIPSE = """
+[scene]
+name = "disk_on_rotated_ellipse"
+script = "fd_contact_2d"
+[mesh]
+nx = 50
+[body1]
+E = 1.0
+nu = 0.3
+shape = { type = "disk", centre = [0.0, 0.2296], radius = 0.15 }   # touching (distance 0.1500)
+[body2]
+E = 1.0
+nu = 0.3
+shape = { type = "ellipse", centre = [0.0, 0.0], semi_axes = [0.35, 0.15], rotate = 30.0, translate = [0.0, -0.1] }
+hold = [{ region = { type = "half_plane", point = [0.0, -0.15], normal = [0.0, 1.0] } }]
+[rigid]
+fix_x_points = [0.0, 0.18, 0.0, 0.28]
+[method]
+degree = 2
+[solver]
+allow_unbalanced = true      # the tilted contact pushes the disk sideways into its pins
+"""
+
+
+def test_rotated_body_2_projects_on_its_closest_point(tmp_path, run_scene):
+    """A rotated body 2 (its level set is evaluated at expressions: finite differences,
+    curved-cell roots, so each rotated coordinate is parenthesized): Pi(x) is the
+    closest point of the rotated ellipse, computed in the ellipse's own frame."""
+    run = run_scene(scene_file(tmp_path, DISK_ON_ROTATED_ELLIPSE), "output.vtu=false")
+    s = run.contact_samples()
+    act = s[s.active > 0.5]
+    assert len(act) > 3
+    c, sn = math.cos(math.radians(30.0)), math.sin(math.radians(30.0))
+    local = [(c * x + sn * (y + 0.1), -sn * x + c * (y + 0.1)) for x, y in zip(act.x, act.y)]
+    closest = np.array([ellipse_closest_point(u, v, 0.0, 0.0, 0.35, 0.15) for u, v in local])
+    exact = np.column_stack([c * closest[:, 0] - sn * closest[:, 1], sn * closest[:, 0] + c * closest[:, 1] - 0.1])
+    assert np.abs(np.column_stack([act.proj_x, act.proj_y]) - exact).max() < 1e-9
+
 PUNCH_CUT_HOLD = """
 [scene]
 name = "punch_cut_hold"
