@@ -96,8 +96,8 @@ SCHEMA = {
                               "(relative to the shear modulus muStar, see method.gamma_scaling)"),
         "fix_x_points": Field("vector", derived="pins fix_ax fix_ay fix_bx fix_by", default=None, unit="length",
                               doc="pins of a floating body 1: u1_x = 0 at the nodes nearest to two points "
-                                  "[x1, y1, x2, y2] inside it; [] none (default: [0, 0, 0, 0.1] for the legacy "
-                                  "disk, none otherwise)"),
+                                  "[x1, y1, x2, y2] inside it, at different heights (they hold x translation and "
+                                  "rotation); [] none (default: [0, 0, 0, 0.1] for the legacy disk, none otherwise)"),
     },
     "method": {
         "degree": Field("int", derived="Ddegree", default=2, choices=(1, 2),

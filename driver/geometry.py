@@ -189,8 +189,9 @@ class Cylinder(Shape):
         return math.pi * self.radius ** 2 * self.length
 
     def bounds_local(self):
-        ext = self.length / 2 + self.radius
-        return [c - ext for c in self.centre], [c + ext for c in self.centre]
+        # along each axis e_i: the half-length times |a_i| plus the end disks' reach r sqrt(1 - a_i^2)
+        ext = [abs(a) * self.length / 2 + self.radius * math.sqrt(max(1.0 - a * a, 0.0)) for a in self.axis]
+        return [c - e for c, e in zip(self.centre, ext)], [c + e for c, e in zip(self.centre, ext)]
 
 
 class Polygon(Shape):

@@ -411,9 +411,11 @@ SHAPES_INTRO = """## Shapes
 
 `bodyN.shape` (two-body scripts) and every `region` of a hold or load is a shape
 table `{ type = "...", ... }` (written by `driver/geometry.py`, checked there).
-Any shape also takes `translate` (a vector) and `rotate` (degrees: one angle in
-2D, `[about x, about y, about z]` in 3D, applied in that order). A body is the
-part of the box where its level set is negative.
+Any shape also takes `rotate` (degrees: one angle in 2D, `[about x, about y,
+about z]` in 3D, applied in that order) and `translate` (a vector): the shape is
+turned about the origin of its own coordinates, then moved by `translate`. To
+turn a shape in place, give it `centre = [0, 0]` and place it with `translate`.
+A body is the part of the box where its level set is negative.
 """
 
 SUPPORTS_TEXT = """## Supports, loads, probes

@@ -96,3 +96,17 @@ def test_error_tools_work_on_shape_tree_scenes(run_scene, tmp_path):
             else:
                 measure, l2 = errors[body]["volume_ref"], errors[body]["l2_abs"]
             assert l2 == pytest.approx(shift * math.sqrt(measure), rel=1e-9), (script, body)
+
+
+def test_exact_volume_of_a_cylinder_lying_in_the_box():
+    """A cylinder whose length plus radius would reach the box but whose real extent does
+    not keeps its exact volume (the bounds follow the axis: |a_i| L/2 + r sqrt(1 - a_i^2))."""
+    from driver.geometry import placed_measure, read_shape
+
+    box = [(-0.5, 0.5)] * 3
+    lying = read_shape({"type": "cylinder", "centre": [0.0, 0.0, 0.0], "axis": [1.0, 0.0, 0.0], "radius": 0.2,
+                        "length": 0.6}, 3, "body1.shape")
+    assert placed_measure(lying, box) == pytest.approx(math.pi * 0.2 ** 2 * 0.6, rel=1e-14)
+    tilted = read_shape({"type": "cylinder", "centre": [0.0, 0.0, 0.0], "axis": [1.0, 1.0, 0.0], "radius": 0.2,
+                         "length": 1.2}, 3, "body1.shape")
+    assert placed_measure(tilted, box) is None      # its ends leave the box: clipped
