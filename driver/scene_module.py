@@ -144,6 +144,11 @@ class Bodies:
             self.loads.append([self.boundary_part(h, f"{source}: key body{i}.load.{n}", "traction", base_dir)
                                for n, h in enumerate(body.get("load", []))])
         self.check_placement(source)
+        for i in (1, 2):
+            for kind, parts in (("hold", self.holds[i - 1]), ("load", self.loads[i - 1])):
+                for n, part in enumerate(parts):
+                    if "face" in part:
+                        self.check_face_reached(i, part["face"], f"{source}: key body{i}.{kind}.{n}.face")
         probes = scene.get("probe", [])
         if not isinstance(probes, list):
             raise SceneError(f"{source}: key probe: expected [[probe]] tables")
@@ -201,6 +206,17 @@ class Bodies:
         if phi >= 0:
             raise SceneError(f"{where}.point: {point} is not inside body {body}")
         return {"name": name, "point": [float(v) for v in point], "body": body}
+
+    def check_face_reached(self, i, label, where):
+        """A box face that a hold or load names must meet body i (phi < 0 somewhere on it)."""
+        axis, side = {1: (1, 0), 2: (0, 1), 3: (1, 1), 4: (0, 0), 5: (2, 0), 6: (2, 1)}[label]
+        face_box = [(lo, hi) if k != axis else ((lo, lo) if side == 0 else (hi, hi))
+                    for k, (lo, hi) in enumerate(self.box)]
+        face = sample_grid(face_box, self.dim, 401 if self.dim == 2 else 81)
+        if np.all(self.shapes[i - 1].phi(*face) >= 0):
+            name = next(f for f, lab in FACES.items() if lab == label)
+            raise SceneError(f"{where}: body {i} does not reach box face {name} (a face hold or load acts on "
+                             f"the part of the face inside the body; use a region for a cut boundary)")
 
     def check_placement(self, source):
         n = 401 if self.dim == 2 else 61

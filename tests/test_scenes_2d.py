@@ -328,6 +328,7 @@ BAD = [
     ('body1.shape={ type = "expression", phi = "__import__(1)" }', "are allowed"),
     ('probe=[{ name = "p", point = [0.4, 0.4] }]', "is not inside body 1"),
     ('body2.hold=[{ face = "top" }]', "face: must be one of"),
+    ('body1.hold=[{ face = "ymax" }]', "body 1 does not reach box face ymax"),
 ]
 
 
