@@ -72,7 +72,7 @@ SCHEMA = {
     },
     "mesh": {
         "nx": Field("int", flag="nx", default=80, check=at_least(2),
-                    doc="elements per side of the box (h = width/nx)"),
+                    doc="elements along x (h = width/nx); along y as many as keep them as tall as wide"),
     },
     "body1": body_schema({
         "shape": Field("tree", default="disk", doc=SHAPE_DOC.format(legacy='"disk"')),

@@ -46,7 +46,7 @@ SCHEMA = {
     },
     "mesh": {
         "nx": Field("int", flag="nx", default=10, check=at_least(2),
-                    doc="cells per side of the box (h = width/nx)"),
+                    doc="cells along x (h = width/nx); along y and z as many as keep them cubic"),
         "grade_h": Field("float", flag="grade_h", default=0.0, check=at_least(0.0), unit="length",
                          doc="0: uniform; else one tetgen pass refines toward the contact point to this edge size"),
         "grade_radius": Field("float", flag="grade_radius", default=0.1, check=at_least(0.0), unit="length",

@@ -396,3 +396,11 @@ def test_ellipse_in_an_arch_is_held_by_the_contact_alone(run_scene):
     assert r["balance"]["balance_error"] < 1e-6 and r["balance"]["mass_share"] < 1e-6
     assert r["contact"]["force_on_body1"][1] == pytest.approx(0.1 * r["areas"]["body1"], rel=1e-6)
     assert r["probes"]["centre"][1] < 0
+
+
+def test_a_non_square_box_keeps_its_elements_square(run_scene):
+    """mesh.nx counts the elements along x; y gets as many as keep them as tall as wide
+    (box 1 x 0.8 at nx = 20: 20 x 16 squares, 640 triangles)."""
+    r = run_scene("cases/disk_on_slab.toml", *QUIET, "mesh.nx=20", "method.degree=1", "geometry.ymin=-0.3").results
+    assert r["elements"] == 2 * 20 * 16
+    assert r["balance"]["balance_error"] < 1e-6
