@@ -106,6 +106,9 @@ SCHEMA = {
                        doc="Nitsche variant: 1 symmetric, 0 non-symmetric, -1 skew-symmetric (any real)"),
         "gamma0": Field("float", flag="gamma0", default=1.0 / 200.0, check=positive, unit="1",
                         doc="Nitsche parameter, gamma = gamma0 h_K / muStar (1/stress with gamma_scaling none)"),
+        "geometry": Field("str", flag="geometry", default="p1", choices=("p1", "curved"),
+                          doc="cut geometry: p1 integrates on the P1 interpolant of each level set (a polygon, "
+                              "area error O(h^2)); curved on the exact level set (docs/curved-geometry.md)"),
         "stabilization": Field("str", flag="stabilization", default="auto", choices=STABILIZATIONS,
                                doc="auto: ghost for theta > 0 (coercivity on cut elements), none otherwise; "
                                    "neighbour: stress of the best-cut neighbour (R_rho); ghost: ghost penalty"),
