@@ -6,8 +6,9 @@ Runs FreeFEM directly, one job at a time, from the repository root:
     python3 freefem/tools/curved_convergence.py [--nxs 40 80 160] [--ref-nx 320]
         [--repeats 3] [--out results/curved_convergence.csv]
 Writes one row per (geometry, nx): centre u_y, its relative error against the
-reference, the rate between successive meshes, the area error of the disk, DOFs,
-Newton iterations and CPU time; and results/curved_cost.csv: the NX = 80 run (with
+reference, the rate between successive meshes, the area error of the disk, the
+relative L2 and H1 errors of both bodies (freefem/tools/fd_error_2d.edp, which
+integrates on the reference's P1 cut geometry), DOFs, Newton iterations and CPU time; and results/curved_cost.csv: the NX = 80 run (with
 estimators, as `make case`) repeated, minimum CPU of all steps per geometry.
 Run folders go to runs/curved_convergence/ (not committed).
 """
@@ -33,6 +34,18 @@ def run(nx, geometry, folder, *extra, reuse=False):
     return json.loads((out / "results.json").read_text())
 
 
+def errors(ref_folder, run_folder):
+    """fd_error_2d.edp of a saved run against the saved reference: relative L2/H1 per body."""
+    base = REPO / "runs" / "curved_convergence"
+    out = base / f"errors_{run_folder}.json"
+    cmd = ["FreeFem++", "-nw", "-v", "0", "freefem/tools/fd_error_2d.edp", "-ref", str(base / ref_folder),
+           "-run", str(base / run_folder), "-out", str(out)]
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
+    if proc.returncode != 0 or not out.exists():
+        raise SystemExit(f"failed: {' '.join(cmd)}\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}")
+    return json.loads(out.read_text())
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--nxs", type=int, nargs="+", default=[40, 80, 160])
@@ -42,13 +55,16 @@ def main():
     ap.add_argument("--cost-out", default="results/curved_cost.csv")
     args = ap.parse_args()
 
-    ref = run(args.ref_nx, "curved", f"ref_curved_{args.ref_nx}", "-estimators", 0, reuse=True)
+    ref_folder = f"ref_curved_{args.ref_nx}"
+    ref = run(args.ref_nx, "curved", ref_folder, "-estimators", 0, "-vtu", 0, "-csv", 0, "-save", 1, reuse=True)
     uref = ref["probes"]["centre"][1]
     rows = []
     for geometry in ["p1", "curved"]:
         prev = None
         for nx in args.nxs:
-            r = run(nx, geometry, f"{geometry}_{nx}_noest", "-estimators", 0)
+            folder = f"{geometry}_{nx}"
+            r = run(nx, geometry, folder, "-estimators", 0, "-vtu", 0, "-csv", 0, "-save", 1)
+            e = errors(ref_folder, folder)
             u = r["probes"]["centre"][1]
             err = abs(u - uref) / abs(uref)
             rate = math.log(prev[1] / err) / math.log(nx / prev[0]) if prev else float("nan")
@@ -57,6 +73,7 @@ def main():
                          "reference_uy": f"{uref:.12e}", "centre_rel_err": f"{err:.4e}",
                          "rate": "" if prev is None else f"{rate:.2f}",
                          "disk_area_rel_err": f"{(area['body1'] - area['body1_exact']) / area['body1_exact']:.3e}",
+                         **{k: f"{e[k]:.3e}" for k in ["l2_body1", "l2_body2", "h1_body1", "h1_body2"]},
                          "dofs": r["dofs"], "newton_iterations": r["newton"]["iterations"],
                          "cpu_all_steps_s": f"{r['timings_cpu_s']['all_steps']:.3f}"})
             prev = (nx, err)
