@@ -362,67 +362,16 @@ def bodies_2d(run, scale):
     path = run.folder / filename
     tris = cells_of(mesh, path, "triangle", 3)
     xy = np.asarray(mesh.points[:, :2], dtype=float)
-    vm = point_field(mesh, path, "von_mises")
     if run.script == "contact_foundation_2d":
         u = point_field(mesh, path, "displacement", "u", size=2)
+        vm = point_field(mesh, path, "von_mises")
         return [make_piece("body", xy, tris, u, vm, None, scale)], (xy, tris, u)
     pieces = []
-    phis = [point_field(mesh, path, f"phi{i}") for i in (1, 2)]
     for i in (1, 2):
         u = point_field(mesh, path, f"u{i}", size=2)
-        body_vm = own_von_mises(run, i, xy, tris, u, vm, phis[i - 1], phis[2 - i])
-        pieces.append(make_piece(f"body {i}", xy, tris, u, body_vm, phis[i - 1], scale))
+        vm = point_field(mesh, path, f"von_mises{i}")      # each body's own stress, from FreeFEM
+        pieces.append(make_piece(f"body {i}", xy, tris, u, vm, point_field(mesh, path, f"phi{i}"), scale))
     return pieces, (xy, tris, point_field(mesh, path, "u1", size=2))
-
-
-def own_von_mises(run, i, xy, tris, u, vm, phi, phi_other):
-    """Body i's von Mises stress at the background vertices.
-
-    fields.vtu keeps at a vertex of both bodies' submeshes the larger of the two bodies' values
-    (one of them extended outside its body): there, body i's value is recovered from its own
-    displacement instead (the area-weighted mean of the P1 element stresses over the elements
-    inside body i, plane strain). Elsewhere the VTU's value is body i's."""
-    material = ((run.results.get("materials") or {}).get(f"body{i}") or {})
-    lam, mu = material.get("lambda"), material.get("mu")
-    if not all(isinstance(v, (int, float)) for v in (lam, mu)):
-        return vm
-    shared = np.zeros(len(xy), dtype=bool)
-    shared[tris[(phi_other[tris] < 0).any(axis=1)].ravel()] = True
-    shared &= phi < 0
-    if not shared.any():
-        return vm
-    element_vm, area = element_von_mises(xy, tris, u, lam, mu)
-    inside = (phi[tris] < 0).all(axis=1)
-    if not inside.any():
-        inside = (phi[tris] < 0).any(axis=1)
-    total = np.zeros(len(xy))
-    weight = np.zeros(len(xy))
-    for k in range(3):
-        np.add.at(total, tris[inside, k], (area * element_vm)[inside])
-        np.add.at(weight, tris[inside, k], area[inside])
-    replace = shared & (weight > 0)
-    out = vm.copy()
-    out[replace] = total[replace] / weight[replace]
-    return out
-
-
-def element_von_mises(xy, tris, u, lam, mu):
-    """Von Mises stress (plane strain) of the P1 interpolant of u on each triangle, and the areas."""
-    p = xy[tris]
-    edges = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]], axis=2)           # columns: edge vectors
-    du = u[tris]
-    jumps = np.stack([du[:, 1] - du[:, 0], du[:, 2] - du[:, 0]], axis=2)
-    det = edges[:, 0, 0] * edges[:, 1, 1] - edges[:, 0, 1] * edges[:, 1, 0]
-    ok = np.abs(det) > 0
-    grad = np.zeros_like(edges)
-    grad[ok] = jumps[ok] @ np.linalg.inv(edges[ok])                              # du_i/dx_j
-    exx, eyy = grad[:, 0, 0], grad[:, 1, 1]
-    exy = 0.5 * (grad[:, 0, 1] + grad[:, 1, 0])
-    trace = exx + eyy
-    sxx, syy, szz = lam * trace + 2 * mu * exx, lam * trace + 2 * mu * eyy, lam * trace
-    sxy = 2 * mu * exy
-    vm = np.sqrt(0.5 * ((sxx - syy) ** 2 + (syy - szz) ** 2 + (szz - sxx) ** 2) + 3 * sxy ** 2)
-    return vm, 0.5 * np.abs(det)
 
 
 def make_piece(label, xy, tris, u, vm, phi, scale):
