@@ -27,7 +27,7 @@ from driver.scene_module import Bodies, fill_legacy, legacy_probe, legacy_suppor
 from driver.scene_module import scene_module  # noqa: F401  (the runner calls module.scene_module)
 from driver.scene import SCENE_HEADER
 from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_declared,
-                           two_body_solver_schema)
+                           two_body_method_schema, two_body_solver_schema)
 
 STABILIZATIONS = ("auto", "none", "neighbour", "ghost")
 GAMMA_SCALINGS = ("shear", "none", "body1", "mean_compliance")
@@ -97,24 +97,16 @@ SCHEMA = {
         "fix_x_points": Field("vector", derived="pins fix_ax fix_ay fix_bx fix_by", default=None, unit="length",
                               doc="pins of a floating body 1: u1_x = 0 at the nodes nearest to two points "
                                   "[x1, y1, x2, y2] inside it, at different heights (they hold x translation and "
-                                  "rotation); [] none (default: [0, 0, 0, 0.1] for the legacy disk, none otherwise)"),
+                                  "rotation); [] none (default: [0, 0, 0, 0.1] for the legacy disk, none "
+                                  "otherwise)"),
     },
-    "method": {
-        "degree": Field("int", derived="Ddegree", default=2, choices=(1, 2),
-                        doc="finite element degree (P1 or P2)"),
-        "theta": Field("float", flag="theta", default=-1.0, unit="1",
-                       doc="Nitsche variant: 1 symmetric, 0 non-symmetric, -1 skew-symmetric (any real)"),
-        "gamma0": Field("float", flag="gamma0", default=1.0 / 200.0, check=positive, unit="1",
-                        doc="Nitsche parameter, gamma = gamma0 h_K / muStar (1/stress with gamma_scaling none)"),
+    "method": dict(two_body_method_schema(2), **{
         "geometry": Field("str", flag="geometry", default="p1", choices=("p1", "curved"),
                           doc="cut geometry: p1 integrates on the P1 interpolant of each level set (a polygon, "
                               "area error O(h^2)); curved on the exact level set (docs/curved-geometry.md)"),
         "stabilization": Field("str", flag="stabilization", default="auto", choices=STABILIZATIONS,
                                doc="auto: ghost for theta > 0 (coercivity on cut elements), none otherwise; "
                                    "neighbour: stress of the best-cut neighbour (R_rho); ghost: ghost penalty"),
-        "rho": Field("float", flag="rho", default=0.25, check=open_interval(0.0, 1.0 + 1e-12, "(0, 1]"), unit="1",
-                     doc="neighbour stabilization: cut ratio |K cap Omega_i|/|K| below which an element "
-                         "borrows its neighbour's stress"),
         "ghost_gamma": Field("float", flag="ghost_gamma", default=1e-2, check=positive, unit="1",
                              doc="ghost penalty weight, times lambda + 2 mu of each body"),
         "gamma_scaling": Field("str", flag="gamma_scaling", default="shear", choices=GAMMA_SCALINGS,
@@ -122,7 +114,7 @@ SCHEMA = {
                                    "dimensionless); none: gamma = gamma0 h_K (gamma0 in 1/stress); body1: "
                                    "gamma = gamma0 h_K / E1 (Young modulus of the disk, whose sigma_n enters the "
                                    "Nitsche terms); mean_compliance: gamma = gamma0 h_K (1/E1 + 1/E2)/2"),
-    },
+    }),
     "solver": dict(two_body_solver_schema("disk", Field(
         "int", flag="contact_qp", default=3, choices=(1, 2, 3, 4), doc="Gauss points per cut segment")),
         time_final_solve=Field("bool", flag="time_final_solve", default=False,

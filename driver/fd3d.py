@@ -28,8 +28,8 @@ from driver.materials import body_lame
 from driver.scene_module import Bodies, fill_legacy, legacy_probe, legacy_supports, support_lines
 from driver.scene_module import scene_module  # noqa: F401  (the runner calls module.scene_module)
 from driver.scene import SCENE_HEADER
-from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_declared,
-                           two_body_solver_schema)
+from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, at_least, positive, put_declared,
+                           two_body_method_schema, two_body_solver_schema)
 
 STABILIZATIONS = ("auto", "none", "neighbour")
 
@@ -83,22 +83,13 @@ SCHEMA = {
         "fix_y_point": Field("vector", flag=("fix_cx", "fix_cy", "fix_cz"), default=None, length=3, unit="length",
                              doc="u1_y = 0 at C (rotation about z), inside the ball, off the line AB in x"),
     },
-    "method": {
-        "degree": Field("int", derived="Ddegree", default=1, choices=(1, 2),
-                        doc="finite element degree (P1 or P2)"),
-        "theta": Field("float", flag="theta", default=-1.0, unit="1",
-                       doc="Nitsche variant: 1 symmetric, 0 non-symmetric, -1 skew-symmetric (any real)"),
-        "gamma0": Field("float", flag="gamma0", default=1.0 / 200.0, check=positive, unit="1",
-                        doc="Nitsche parameter, gamma = gamma0 h_K / muStar (1/stress with gamma_scaling none)"),
+    "method": dict(two_body_method_schema(1), **{
         "stabilization": Field("str", flag="stabilization", default="auto", choices=STABILIZATIONS,
                                doc="auto: neighbour for theta > 0 (coercivity on cut elements), none otherwise"),
-        "rho": Field("float", flag="rho", default=0.25, check=open_interval(0.0, 1.0 + 1e-12, "(0, 1]"), unit="1",
-                     doc="neighbour stabilization: cut ratio below which an element borrows its "
-                         "neighbour's stress"),
         "gamma_scaling": Field("str", flag="gamma_scaling", default="shear", choices=("shear", "none"),
                                doc="shear: gamma = gamma0 h_K / muStar, muStar = 2 mu1 mu2/(mu1 + mu2) (gamma0 "
                                    "dimensionless); none: gamma = gamma0 h_K (gamma0 in 1/stress)"),
-    },
+    }),
     "solver": two_body_solver_schema("ball", Field(
         "int", flag="contact_qp", default=0, choices=(0, 1, 3, 6),
         doc="points per interface triangle (0: 3 for P1, 6 for P2)")),

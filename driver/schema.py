@@ -164,6 +164,22 @@ def schema_flags(schema):
     return names
 
 
+def two_body_method_schema(degree):
+    """The [method] keys the two-body scripts (2D and 3D) share: degree, the Nitsche theta
+    and gamma0, the neighbour stabilization's threshold."""
+    return {
+        "degree": Field("int", derived="Ddegree", default=degree, choices=(1, 2),
+                        doc="finite element degree (P1 or P2)"),
+        "theta": Field("float", flag="theta", default=-1.0, unit="1",
+                       doc="Nitsche variant: 1 symmetric, 0 non-symmetric, -1 skew-symmetric (any real)"),
+        "gamma0": Field("float", flag="gamma0", default=1.0 / 200.0, check=positive, unit="1",
+                        doc="Nitsche parameter, gamma = gamma0 h_K / muStar (1/stress with gamma_scaling none)"),
+        "rho": Field("float", flag="rho", default=0.25, check=open_interval(0.0, 1.0 + 1e-12, "(0, 1]"), unit="1",
+                     doc="neighbour stabilization: cut ratio |K cap Omega_i|/|K| below which an element "
+                         "borrows its neighbour's stress"),
+    }
+
+
 def two_body_solver_schema(floating_body, contact_points):
     """The [solver] keys of the two-body scripts (2D and 3D): semi-smooth Newton and its start."""
     return {
