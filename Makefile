@@ -100,6 +100,14 @@ scenes-study: setup
 	$(PYTHON) -m driver study scenes
 	$(PYTHON) -m driver readme
 
+# The curved cut geometry against the P1 one (docs/curved-geometry.md): cut-cell
+# accuracy, disk-on-slab convergence against a curved P2 NX = 320 reference
+# (computed once into runs/reference/), cost of the NX = 80 run.
+.PHONY: curved-study
+curved-study: setup
+	$(PYTHON) -m driver study curved-geometry curved-convergence
+	$(PYTHON) -m driver readme
+
 .PHONY: fd3d-study
 fd3d-study: setup
 	$(PYTHON) -m driver study fd3d-convergence ball-on-slab-figure fd3d-adaptive

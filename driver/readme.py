@@ -231,6 +231,28 @@ def scenes_table():
     return markdown_table(t[["scene", "dofs", "newton_iterations", "force_y", "balance_error", "wall_s"]], digits=3)
 
 
+
+def curved_geometry():
+    t = pd.read_csv(RESULTS / "curved_geometry.csv")
+    wide = t.pivot_table(index=["disk", "nx"], columns="geometry",
+                         values=["area_rel_err", "perimeter_rel_err", "poly_rel_err"]).reset_index()
+    out = pd.DataFrame({"disk": wide["disk"], "NX": wide["nx"]})
+    for value, label in (("area_rel_err", "area"), ("perimeter_rel_err", "perimeter"),
+                         ("poly_rel_err", "polynomial")):
+        for geometry in ("p1", "curved"):
+            out[f"{label} {geometry}"] = wide[(value, geometry)].map(lambda v: f"{v:.2g}")
+    return markdown_table(out)
+
+
+def curved_convergence():
+    t = pd.read_csv(RESULTS / "curved_convergence.csv")
+    out = t[["nx", "geometry", "centre_rel_err", "rate", "l2_body1", "l2_body2", "h1_body1", "h1_body2", "wall_s"]]
+    return markdown_table(out, digits=2)
+
+
+def curved_cost():
+    return markdown_table(pd.read_csv(RESULTS / "curved_cost.csv"), digits=3)
+
 TABLES = {
     "hertz": hertz,
     "scenes": scenes_table,
@@ -256,6 +278,9 @@ TABLES = {
     "fd3d_convergence": fd3d_convergence,
     "fd3d_cost": fd3d_cost,
     "fd3d_adaptive": fd3d_adaptive,
+    "curved_geometry": curved_geometry,
+    "curved_convergence": curved_convergence,
+    "curved_cost": curved_cost,
 }
 
 

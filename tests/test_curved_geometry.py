@@ -13,7 +13,7 @@ import pytest
 from tests.conftest import REPO, run_freefem
 
 # Disk-centre u_y of the disk on slab, P2, theta = -1, gamma0 = 1/200, curved geometry,
-# NX = 320 (python3 freefem/tools/curved_convergence.py, results/curved_convergence.csv).
+# NX = 320 (make curved-study, results/curved_convergence.csv).
 CENTRE_UY_REF = -1.833891860157e-02
 
 

@@ -26,6 +26,8 @@ REGISTRY = {
     "hard-cases": ("hard_cases", "hard_cases"),
     "hard-conditioning": ("hard_cases", "hard_conditioning"),
     "scenes": ("scenes", "scenes"),
+    "curved-geometry": ("curved", "geometry_check"),
+    "curved-convergence": ("curved", "convergence"),
     "bench": ("bench", "bench"),
     "bench-newton": ("bench", "newton_grid"),
 }
