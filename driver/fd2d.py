@@ -101,9 +101,10 @@ SCHEMA = {
                                   "otherwise)"),
     },
     "method": dict(two_body_method_schema(2), **{
-        "geometry": Field("str", flag="geometry", default="p1", choices=("p1", "curved"),
-                          doc="cut geometry: p1 integrates on the P1 interpolant of each level set (a polygon, "
-                              "area error O(h^2)); curved on the exact level set (docs/curved-geometry.md)"),
+        "geometry": Field("str", flag="geometry", default="curved", choices=("p1", "curved"),
+                          doc="cut geometry: curved integrates on the exact level set of the shapes "
+                              "(docs/curved-geometry.md); p1 on the P1 interpolant of each level set (a polygon, "
+                              "area error O(h^2), which limits P2)"),
         "stabilization": Field("str", flag="stabilization", default="auto", choices=STABILIZATIONS,
                                doc="auto: ghost for theta > 0 (coercivity on cut elements), none otherwise; "
                                    "neighbour: stress of the best-cut neighbour (R_rho); ghost: ghost penalty"),

@@ -32,7 +32,7 @@ def test_adaptive_loop_lowers_eta_and_keeps_the_geometry(run_scene):
     assert all(b < a for a, b in zip(steps["eta"], steps["eta"][1:]))
     assert steps["eta"][-1] < 0.5 * steps["eta"][0]
     disk = math.pi * 0.25 ** 2
-    # the P1 level-set polygon approaches the disk, never leaves it
-    assert all(abs(a - disk) < 0.02 * disk for a in steps["area_body1"])
-    assert abs(steps["area_body1"][-1] - disk) <= abs(steps["area_body1"][0] - disk)
+    # the curved cut cells keep the disk's area on every adapted mesh (relative errors
+    # measured -6.6e-9, 1.7e-7, 2.9e-7, 4.5e-7)
+    assert all(abs(a - disk) < 2e-6 * disk for a in steps["area_body1"]), steps["area_body1"]
     assert all(a == pytest.approx(0.25, rel=1e-9) for a in steps["area_body2"])
