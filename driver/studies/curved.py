@@ -8,10 +8,9 @@ The solver and the error tool compute; this module runs, tabulates and times.
 import numpy as np
 import pandas as pd
 
-from driver.runner import REPO, TOOLS_DIR, freefem_binary, parse_json_file, run_command, run_scene
-from driver.scene import load_scene
-from driver.studies.common import RESULTS_DIR, cached_reference, progress, run_point
-from driver.studies.fd2d import DISK, QUIET, REFERENCE_NX, run_with_errors
+from driver.runner import REPO, TOOLS_DIR, freefem_binary, parse_json_file, run_command
+from driver.studies.common import RESULTS_DIR, progress, run_point
+from driver.studies.fd2d import DISK, QUIET, REFERENCE_NX, reference, run_with_errors
 
 GEOMETRIES = ("p1", "curved")
 LADDER = (40, 80, 160)
@@ -28,24 +27,12 @@ def geometry_check():
     print(f"wrote {out}")
 
 
-def curved_reference(nx=REFERENCE_NX):
-    """P2, theta = -1, gamma0 = 1/200 at NX = nx on the curved geometry."""
-    folder = REPO / "runs" / "reference" / f"disk_on_slab_p2_nx{nx}_curved"
-
-    def compute():
-        scene, module = load_scene(DISK, [f"mesh.nx={nx}", "method.geometry=curved", "output.save_solution=true",
-                                          "output.estimators=false", *QUIET])
-        run_scene(scene, module, out_dir=folder, replace=True)
-
-    return cached_reference(folder, f"the curved disk-on-slab reference (P2, NX = {nx})", compute)
-
-
 def convergence():
     """Disk-centre u_y and L2/H1 errors per body (fd_error_2d.edp) of both geometries on
     NX = 40, 80, 160 against the curved reference: results/curved_convergence.csv. Then
     the NX = 80 run as make case runs it (estimators on), repeated, minimum CPU per
     geometry and its ratio to P1: results/curved_cost.csv."""
-    ref = curved_reference()
+    ref = reference(REFERENCE_NX, "curved")
     centre_ref = parse_json_file(ref / "results.json")["probes"]["centre"][1]
     rows = []
     for n, (geometry, nx) in enumerate([(g, nx) for g in GEOMETRIES for nx in LADDER], start=1):

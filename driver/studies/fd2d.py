@@ -21,6 +21,7 @@ from driver.sweep import file_digest, run_points, task_point
 DISK = REPO / "cases" / "disk_on_slab.toml"
 REFERENCE_NX = int(os.environ.get("FD2D_REFERENCE_NX", "320"))
 LADDER = (10, 20, 40, 80, 160)
+GEOMETRIES = ("curved", "p1")   # method.geometry: the default first
 GAMMA0S = (400, 200, 100, 50, 25, 10, 1, 1 / 10, 1 / 25, 1 / 50, 1 / 100, 1 / 200, 1 / 400)
 QUIET = ["output.vtu=false", "output.pressure_csv=false"]
 UNSTABILIZED = "method.stabilization='none'"
@@ -32,15 +33,16 @@ SEED_RATES = {
 }
 
 
-def reference(nx=REFERENCE_NX):
-    """P2, theta = -1, gamma0 = 1/200 at NX = nx."""
-    folder = REPO / "runs" / "reference" / f"disk_on_slab_p2_nx{nx}"
+def reference(nx=REFERENCE_NX, geometry="curved"):
+    """P2, theta = -1, gamma0 = 1/200 at NX = nx on the given cut geometry."""
+    folder = REPO / "runs" / "reference" / f"disk_on_slab_p2_nx{nx}_{geometry}"
 
     def compute():
-        scene, module = load_scene(DISK, [f"mesh.nx={nx}", "output.save_solution=true", *QUIET])
+        scene, module = load_scene(DISK, [f"mesh.nx={nx}", f"method.geometry={geometry}", "output.save_solution=true",
+                                          "output.estimators=false", *QUIET])
         run_scene(scene, module, out_dir=folder, replace=True)
 
-    return cached_reference(folder, f"the disk-on-slab reference (P2, NX = {nx})", compute)
+    return cached_reference(folder, f"the disk-on-slab reference (P2, NX = {nx}, {geometry} geometry)", compute)
 
 
 def errors_against(ref, run_folder):
@@ -92,34 +94,41 @@ def rates_of(table, group_keys):
 
 
 def convergence():
+    """Both cut geometries (method.geometry) against the curved reference: the P1 rows
+    show what the polygonal level set costs."""
     ref = reference()
     # unstabilized for every theta, as the seed's table (the scene's auto would add ghost for theta > 0)
-    grid = [([f"method.degree={d}", f"method.theta={t}", f"mesh.nx={nx}", UNSTABILIZED], dict(degree=d, theta=t))
-            for d in (1, 2) for t in (1, 0, -1) for nx in LADDER]
+    grid = [([f"method.geometry={g}", f"method.degree={d}", f"method.theta={t}", f"mesh.nx={nx}", UNSTABILIZED],
+             dict(geometry=g, degree=d, theta=t))
+            for g in GEOMETRIES for d in (1, 2) for t in (1, 0, -1) for nx in LADDER]
     rows = run_points(run_with_errors_points(ref, grid), "fd2d-convergence")
     table = pd.DataFrame(rows)
     RESULTS_DIR.mkdir(exist_ok=True)
     table.to_csv(RESULTS_DIR / "fd2d_convergence.csv", index=False)
-    rates = rates_of(table, ["degree", "theta"])
+    rates = rates_of(table, ["geometry", "degree", "theta"])
     rates.to_csv(RESULTS_DIR / "fd2d_rates.csv", index=False)
     print(markdown_table(rates_table(rates), digits=3))
-    plot_convergence(table, "fd2d_convergence.png",
-                     f"disk on slab, gamma0 = 1/200, reference P2 NX = {REFERENCE_NX} (make fd2d-study)")
+    for geometry in GEOMETRIES:
+        name = "fd2d_convergence.png" if geometry == GEOMETRIES[0] else f"fd2d_convergence_{geometry}.png"
+        plot_convergence(table[table.geometry == geometry], name,
+                         f"disk on slab, {geometry} geometry, gamma0 = 1/200, "
+                         f"reference P2 NX = {REFERENCE_NX} curved (make fd2d-study)")
     return table
 
 
 def rates_table(rates):
-    """Ours beside the seed's: one row per norm and body, one column per (degree, theta)."""
+    """Ours beside the seed's: one row per geometry, norm and body, one column per (degree, theta)."""
     rows = []
-    for norm, body, seed_index in (("L2", 1, 0), ("L2", 2, 1), ("H1", 1, 2), ("H1", 2, 3)):
-        row = {"rate": f"{norm} body {body}"}
-        for degree in (1, 2):
-            for theta in (1, 0, -1):
-                pick = rates[(rates.degree == degree) & (rates.theta == theta) & (rates.body == body)
-                             & (rates.norm == norm)]
-                ours = f"{pick.rate.iloc[0]:.2f}" if len(pick) else "-"
-                row[f"P{degree} th={theta}"] = f"{ours} ({SEED_RATES[(degree, theta)][seed_index]:.2f})"
-        rows.append(row)
+    for geometry in [g for g in GEOMETRIES if g in set(rates.geometry)]:
+        for norm, body, seed_index in (("L2", 1, 0), ("L2", 2, 1), ("H1", 1, 2), ("H1", 2, 3)):
+            row = {"geometry": geometry, "rate": f"{norm} body {body}"}
+            for degree in (1, 2):
+                for theta in (1, 0, -1):
+                    pick = rates[(rates.geometry == geometry) & (rates.degree == degree) & (rates.theta == theta)
+                                 & (rates.body == body) & (rates.norm == norm)]
+                    ours = f"{pick.rate.iloc[0]:.2f}" if len(pick) else "-"
+                    row[f"P{degree} th={theta}"] = f"{ours} ({SEED_RATES[(degree, theta)][seed_index]:.2f})"
+            rows.append(row)
     return pd.DataFrame(rows)
 
 
