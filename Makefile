@@ -27,7 +27,7 @@ setup-system:
 
 # find_spec locates each package without importing it (importing them all costs
 # about 1.3 s, paid on every make case).
-PYTHON_PACKAGES := numpy pandas matplotlib meshio pytest scipy dask distributed
+PYTHON_PACKAGES := numpy pandas matplotlib meshio pytest scipy dask distributed tqdm
 setup-python:
 	@if ! $(PYTHON) -c "import importlib.util as u, sys; sys.exit(any(u.find_spec(m) is None for m in sys.argv[1:]))" \
 	    $(PYTHON_PACKAGES) 2>/dev/null; then \

@@ -5,9 +5,14 @@ import re
 import signal
 import sys
 
+from driver import progress
 from driver.errors import DriverError
 from driver.runner import Interrupted
 from driver.studies import REGISTRY as STUDY_NAMES
+
+# Commands whose parsers need nothing from driver.sweep: for these the sweep
+# commands' parsers (and with them driver.sweep) are not built.
+OWN_COMMANDS = ("run", "scene-module", "study", "plot", "readme")
 
 
 def cmd_run(args):
@@ -15,18 +20,30 @@ def cmd_run(args):
     from driver.scene import load_scene
 
     scene, module = load_scene(args.scene, args.set)
-    echo = progress_echo(args.verbose)
-    results, folder, wall = run_scene(scene, module, out_dir=args.out, script=args.script, echo=echo,
-                                      replace=args.replace)
+    steps = scene.get("adapt", {}).get("steps", 0)
+    # FreeFEM prints one "step K" line per solve of an adaptive run: a bar over them.
+    bar = None if args.verbose or not steps else progress.bar(total=steps + 1, desc=scene["scene"]["name"],
+                                                              unit="step")
+    try:
+        results, folder, wall = run_scene(scene, module, out_dir=args.out, script=args.script,
+                                          echo=progress_echo(args.verbose, bar), replace=args.replace)
+    finally:
+        if bar is not None:
+            bar.close()
     print(format_summary(scene, module, results, folder, wall))
     return 0
 
 
-def progress_echo(verbose):
-    """All of FreeFEM's output with -v; otherwise only adaptation steps (long runs)."""
+def progress_echo(verbose, bar=None):
+    """All of FreeFEM's output with -v; otherwise only adaptation steps (long runs),
+    which also move the bar."""
     def echo(line):
-        if verbose or line.startswith("step "):
-            print(line if verbose else f"  {line}", file=sys.stdout if verbose else sys.stderr, flush=True)
+        if verbose:
+            print(line, flush=True)
+        elif line.startswith("step "):
+            progress.write(f"  {line}")
+            if bar is not None:
+                bar.update(1)
     return echo
 
 
@@ -65,7 +82,8 @@ def cmd_study(args):
 
     sweep.configure(workers=args.workers, scheduler=args.scheduler)
     for name in args.names:
-        study(name)()
+        with progress.study_bar(name):
+            study(name)()
     return 0
 
 
@@ -84,7 +102,8 @@ def cmd_readme(args):
     return 0
 
 
-def build_parser():
+def build_parser(argv=None):
+    """The command line; the sweep commands only when argv may name them (or asks for help)."""
     parser = argparse.ArgumentParser(prog="python -m driver", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="validate a scene, run FreeFEM, print a summary")
@@ -109,9 +128,11 @@ def build_parser():
                        "points as a sweep (fd2d-convergence, fd2d-gamma0; default: the number of cores)")
     study.add_argument("--scheduler", help="send those points to an existing Dask scheduler tcp://HOST:PORT")
     study.set_defaults(func=cmd_study)
-    from driver.sweep import add_parser as add_sweep_parsers
+    command = next((a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")), None)
+    if command not in OWN_COMMANDS:
+        from driver.sweep import add_parser as add_sweep_parsers
 
-    add_sweep_parsers(sub)
+        add_sweep_parsers(sub)
     plot = sub.add_parser("plot", help="figures of a run folder (PNG files written into it, docs/outputs.md)")
     plot.add_argument("run", help="run folder, e.g. runs/NAME-TIME-HASH")
     plot.add_argument("--plane", help="3D: the cut plane AXIS=VALUE, e.g. y=0 (default: y through the contact)")
@@ -124,7 +145,7 @@ def build_parser():
 
 
 def main(argv=None):
-    parser = build_parser()
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     # "--set 'a=1 b=[0, 2]'" (as make passes SET) means two overrides: split at
     # white space that starts a new KEY=, not inside values.

@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from driver.errors import DriverError, SceneError
+from driver.progress import bar as progress_bar
 from driver.runner import REPO
 
 RESULTS_DIR = REPO / "results"
@@ -431,29 +432,40 @@ def write_table(path, points, store, extra_columns=True):
 
 
 class Progress:
-    """One updating line on stderr (one line per change when stderr is not a terminal)."""
+    """A bar over the sweep's points on a terminal (driver.progress); elsewhere one
+    line per change. The final state is always printed as a line."""
 
-    def __init__(self, name, total, skipped, stream=sys.stderr):
-        self.name, self.total, self.skipped, self.stream = name, total, skipped, stream
+    def __init__(self, name, total, skipped, stream=None):
+        self.name, self.total, self.skipped = name, total, skipped
+        self.stream = stream or sys.stderr
         self.start = time.perf_counter()
-        self.tty = stream.isatty()
+        self.bar = progress_bar(total=total, desc=f"sweep {name}", unit="point", initial=skipped) \
+            if self.stream is sys.stderr else None
         self.last = None
+
+    def text(self, done, running, failed, note=""):
+        return (f"sweep {self.name}: {done}/{self.total} done ({self.skipped} from earlier runs), "
+                f"{running} running, {failed} failed, {time.perf_counter() - self.start:.1f} s"
+                + (f"  {note}" if note else ""))
 
     def show(self, done, running, failed, note=""):
         state = (done, running, failed, note)
-        if state == self.last and not self.tty:
+        if state == self.last:
             return
         self.last = state
-        text = (f"sweep {self.name}: {done}/{self.total} done ({self.skipped} from earlier runs), "
-                f"{running} running, {failed} failed, {time.perf_counter() - self.start:.1f} s"
-                + (f"  {note}" if note else ""))
-        self.stream.write("\r\033[K" + text if self.tty else text + "\n")
+        if self.bar is not None:
+            self.bar.update(done - self.bar.n)
+            self.bar.set_postfix_str(f"{running} running, {failed} failed" + (f"  {note}" if note else ""))
+            return
+        self.stream.write(self.text(done, running, failed, note) + "\n")
         self.stream.flush()
 
     def close(self):
-        if self.tty:
-            self.stream.write("\n")
-            self.stream.flush()
+        if self.bar is not None:
+            self.bar.close()
+            if self.last is not None:
+                self.stream.write(self.text(*self.last) + "\n")
+                self.stream.flush()
 
 
 def configure(workers=None, scheduler=None):

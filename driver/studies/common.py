@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from driver.errors import DriverError, SceneError
+from driver.progress import run_started, write
 from driver.runner import REPO, run_freefem_tool, run_scene
 from driver.scene import load_scene
 
@@ -37,7 +38,9 @@ def tool_errors(tool, ref, run_folder):
 
 
 def progress(i, n, text):
-    print(f"[{i}/{n}] {text}", file=sys.stderr, flush=True)
+    """Run i of a loop of n starts: shown by the study's bar on a terminal, else one line."""
+    if not run_started(f"[{i}/{n}] {text}"):
+        print(f"[{i}/{n}] {text}", file=sys.stderr, flush=True)
 
 
 def markdown_table(frame, digits=4):
@@ -56,7 +59,7 @@ def cached_reference(folder, what, compute):
     """A reference run kept in runs/reference/: computed once. Its results.json is
     written last and atomically, so its presence means the run is complete."""
     if not (folder / "results.json").is_file():
-        print(f"computing {what} in {folder}", file=sys.stderr, flush=True)
+        write(f"computing {what} in {folder}")
         compute()
     return folder
 
