@@ -83,9 +83,12 @@ hard-study: setup
 	$(PYTHON) -m driver study hard-cases hard-conditioning
 	$(PYTHON) -m driver readme
 
+# bench-overhead: make case's whole process against the FreeFEM run alone (medians),
+# MUMPS's phases and the first active set (results/bench_overhead*.csv, bench_mumps.csv,
+# bench_first_active_set.csv).
 .PHONY: bench
 bench: setup
-	$(PYTHON) -m driver study bench-newton bench
+	$(PYTHON) -m driver study bench-newton bench bench-overhead
 	$(PYTHON) -m driver readme
 
 # Fictitious-domain ball on slab (3D): P1 (theta = 1, 0, -1) and P2 ladders against a

@@ -140,6 +140,26 @@ def bench_targets():
             + f"\n\nMachine: {t.machine.iloc[0]}; load average (1 min) {t.load_average.iloc[0]} the timed runs.")
 
 
+def bench_overhead():
+    from driver.studies.bench import overhead_table
+
+    t = pd.read_csv(RESULTS / "bench_overhead.csv")
+    return (markdown_table(overhead_table(t), digits=3)
+            + f"\n\nMachine: {t.machine.iloc[0]}; load average (1 min) {t.load_1min.iloc[0]} over the runs.")
+
+
+def bench_mumps():
+    from driver.studies.bench import mumps_summary
+
+    return markdown_table(mumps_summary(pd.read_csv(RESULTS / "bench_mumps.csv")), digits=3)
+
+
+def bench_first_active_set():
+    t = pd.read_csv(RESULTS / "bench_first_active_set.csv")
+    return markdown_table(t[["active0", "newton_iterations", "factorizations", "gmres_iterations", "cpu_newton",
+                             "cpu_newton_factor_solve", "active_length", "centre_uy_rel_diff"]], digits=3)
+
+
 def bench_newton():
     """Newton iterations per (degree, theta) and gamma0: the largest over the NX ladder."""
     t = pd.read_csv(RESULTS / "bench_newton.csv")
@@ -263,6 +283,9 @@ TABLES = {
     "bench_scaling": bench_scaling,
     "bench_targets": bench_targets,
     "bench_newton": bench_newton,
+    "bench_overhead": bench_overhead,
+    "bench_mumps": bench_mumps,
+    "bench_first_active_set": bench_first_active_set,
     "fd_aposteriori": fd_aposteriori,
     "fd2d_theta1_stabilization": fd2d_theta1_stabilization,
     "fd2d_crosscheck": fd2d_crosscheck,

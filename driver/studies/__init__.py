@@ -30,6 +30,7 @@ REGISTRY = {
     "curved-convergence": ("curved", "convergence"),
     "bench": ("bench", "bench"),
     "bench-newton": ("bench", "newton_grid"),
+    "bench-overhead": ("bench", "overhead"),
 }
 
 

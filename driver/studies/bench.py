@@ -6,19 +6,31 @@ Three tables, all from runs made by this module:
   and the relative H1 error against the P2 NX = 320 reference;
 - results/bench_scaling.csv: least-squares exponent of each phase's time against DOFs;
 - results/bench_newton.csv: Newton iterations over theta x gamma0 x NX x degree;
-- results/bench_targets.csv: the speed and Newton targets with the measured values.
+- results/bench_targets.csv: the speed and Newton targets with the measured values;
+- results/bench_overhead*.csv, bench_mumps.csv, bench_first_active_set.csv (study
+  bench-overhead): what a whole `python -m driver run` of the default scene costs
+  beside the FreeFEM run alone, where FreeFEM's solver time goes, and how the first
+  active set drives the Newton steps.
 Wall times on a shared machine are noisy: the target run is repeated and its
 median reported together with the load average at the time.
 """
 
 import os
 import platform
+import re
 import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from driver.errors import DriverError
+from driver.runner import REPO, freefem_binary, freefem_env, parse_json_file
 from driver.studies.fd2d import DISK, QUIET, errors_against, reference
 from driver.studies.common import PLOTS_DIR, RESULTS_DIR, loglog_slope, markdown_table, progress, run_point
 
@@ -240,4 +252,176 @@ def bench():
     print(markdown_table(ratios, digits=3))
     print(markdown_table(targets[["target", "bound", "measured", "met"]]))
     plot(table)
+    return table
+
+
+# ---- whole-process overhead of one run of the default scene (study bench-overhead) ----
+
+OVERHEAD_REPEATS = 5
+DIRECT_SCRIPT = "freefem/fd_contact_2d.edp"   # its embedded defaults are the default scene
+OVERHEAD_PHASES = (*PHASES, "all_steps")
+FIRST_SET_ACTIVE0 = (0.1, 0.3, 0.7, 1.0)      # solver.active0: first trial set {gap <= active0 h}
+# MUMPS's own timers, printed with FreeFEM's -v 4 (wall seconds of each call)
+MUMPS_TIMERS = {
+    "ordering (SCOTCH)": r"ELAPSED TIME SPENT IN SCOTCH reordering\s*=\s*(\S+)",
+    "analysis (with the ordering)": r"Elapsed time in analysis driver\s*=\s*(\S+)",
+    "numeric factorization": r"Elapsed time in factorization driver\s*=\s*(\S+)",
+    "solve": r"Elapsed time in solve driver\s*=\s*(\S+)",
+}
+
+
+def user_environment():
+    """The environment of a user's shell: Python caches bytecode (some sandboxes set
+    PYTHONDONTWRITEBYTECODE, which makes every start compile the driver again)."""
+    env = dict(os.environ)
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    return env
+
+
+def timed_process(command, env, what):
+    """Wall seconds and CPU seconds (user + system of the process and of the children
+    it waited for, FreeFEM under the driver included) of one command."""
+    start = time.perf_counter()
+    proc = subprocess.Popen(command, cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True, errors="replace")
+    err = proc.stderr.read()
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - start
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    proc.stderr.close()
+    if proc.returncode != 0:
+        raise DriverError(f"bench-overhead: {what} failed (exit {proc.returncode}): {err.strip()[-500:]}")
+    return wall, usage.ru_utime + usage.ru_stime
+
+
+def overhead_commands(folder):
+    """label -> (command, environment, run folder whose results.json it writes, or None)."""
+    python = sys.executable
+    return {
+        "python3 -c pass (interpreter start)": ([python, "-c", "pass"], user_environment(), None),
+        "make -s setup (the check make case runs first)": (["make", "-s", "setup", f"PYTHON={python}"],
+                                                           user_environment(), None),
+        "python3 -m driver run cases/disk_on_slab.toml": (
+            [python, "-m", "driver", "run", str(DISK.relative_to(REPO)), "--out", str(folder / "driver")],
+            user_environment(), folder / "driver"),
+        f"FreeFem++ -nw -v 0 {DIRECT_SCRIPT} (direct)": (
+            [freefem_binary(), "-nw", "-v", "0", DIRECT_SCRIPT, "-outdir", str(folder / "direct")],
+            freefem_env(), folder / "direct"),
+    }
+
+
+def overhead_runs():
+    """Every command once per repeat, in turn (the machine's load drifts alike over all)."""
+    rows = []
+    for repeat in range(OVERHEAD_REPEATS):
+        with tempfile.TemporaryDirectory(prefix="bench-overhead-") as tmp:
+            commands = overhead_commands(Path(tmp))
+            for label, (command, env, folder) in commands.items():
+                progress(repeat + 1, OVERHEAD_REPEATS, label)
+                if folder is not None and folder.name == "direct":
+                    folder.mkdir()
+                load = load_average()
+                wall, cpu = timed_process(command, env, label)
+                row = dict(command=label, repeat=repeat, wall_s=wall, cpu_s=cpu, load_1min_before=load)
+                if folder is not None:
+                    results = parse_json_file(folder / "results.json")
+                    timings = results.get("timings_cpu_s", {})
+                    row.update(freefem_wall_s=results.get("wall_s", wall), dofs=results["dofs"],
+                               newton_iterations=results["newton"]["iterations"],
+                               **{f"cpu_{p}": timings.get(p) for p in OVERHEAD_PHASES})
+                rows.append(row)
+    runs = pd.DataFrame(rows)
+    solved = runs.dropna(subset=["dofs"])
+    if solved[["dofs", "newton_iterations"]].nunique().max() > 1:
+        raise DriverError("bench-overhead: the driver's run and the direct FreeFEM run solved different "
+                          "problems (DOFs or Newton iterations differ): the script's defaults left the scene")
+    return runs
+
+
+def overhead_summary(runs):
+    """Medians per command; for the driver, also the part outside the FreeFEM process."""
+    rows = []
+    for label, group in runs.groupby("command", sort=False):
+        row = dict(command=label, runs=len(group), wall_s=group.wall_s.median(), cpu_s=group.cpu_s.median())
+        if group.get("freefem_wall_s") is not None and group.freefem_wall_s.notna().all():
+            row.update(freefem_wall_s=group.freefem_wall_s.median(),
+                       outside_freefem_s=(group.wall_s - group.freefem_wall_s).median(),
+                       **{f"cpu_{p}": group[f"cpu_{p}"].median() for p in OVERHEAD_PHASES})
+        rows.append(row)
+    summary = pd.DataFrame(rows)
+    summary["load_1min"] = f"{runs.load_1min_before.min():.2f} to {runs.load_1min_before.max():.2f}"
+    summary["machine"] = machine()
+    return summary
+
+
+def mumps_timers():
+    """One direct run with FreeFEM's -v 4, which makes MUMPS print its timers: one row per
+    call (ordering, analysis, numeric factorization, solve)."""
+    with tempfile.TemporaryDirectory(prefix="bench-mumps-") as tmp:
+        proc = subprocess.run([freefem_binary(), "-nw", "-v", "4", DIRECT_SCRIPT, "-outdir", tmp], cwd=REPO,
+                              env=freefem_env(), capture_output=True, text=True, errors="replace")
+        if proc.returncode != 0 or not (Path(tmp) / "results.json").is_file():
+            raise DriverError(f"bench-overhead: the -v 4 run failed (exit {proc.returncode})")
+        results = parse_json_file(Path(tmp) / "results.json")
+    rows = []
+    for kind, pattern in MUMPS_TIMERS.items():
+        for k, value in enumerate(re.findall(pattern, proc.stdout)):
+            rows.append(dict(kind=kind, call=k, seconds=float(value)))
+    table = pd.DataFrame(rows)
+    table["newton_factor_solve_cpu_s"] = results["timings_cpu_s"]["newton_factor_solve"]
+    table["factorizations"] = results["newton"]["factorizations"]
+    table["gmres_iterations"] = results["newton"]["gmres_iterations"]
+    return table
+
+
+def mumps_summary(table):
+    """Per MUMPS phase: calls, median and total seconds."""
+    out = table.groupby("kind", sort=False).seconds.agg(["count", "median", "sum"]).reset_index()
+    return out.rename(columns={"kind": "MUMPS phase", "count": "calls", "median": "median s", "sum": "total s"})
+
+
+def first_active_set():
+    """The default scene solved from first trial sets {gap <= active0 h} of several sizes:
+    Newton steps, factorizations and cost, and how far the solution moves (round-off)."""
+    rows = []
+    for i, active0 in enumerate(FIRST_SET_ACTIVE0, 1):
+        progress(i, len(FIRST_SET_ACTIVE0), f"first active set, solver.active0={active0}")
+        _, results, _ = checked_point([f"solver.active0={active0}", *SOLVE_ONLY], f"active0={active0}")
+        newton, timings = results["newton"], results["timings_cpu_s"]
+        rows.append(dict(active0=active0, newton_iterations=newton["iterations"],
+                         factorizations=newton["factorizations"], gmres_iterations=newton["gmres_iterations"],
+                         cpu_newton=timings["newton"], cpu_newton_factor_solve=timings["newton_factor_solve"],
+                         final_residual=newton["final_residual"],
+                         active_length=results["contact"]["active_length"],
+                         centre_uy=results["probes"]["centre"][1]))
+    table = pd.DataFrame(rows)
+    default = table[table.active0 == FIRST_SET_ACTIVE0[0]].iloc[0]
+    table["centre_uy_rel_diff"] = (table.centre_uy - default.centre_uy).abs() / abs(default.centre_uy)
+    return table
+
+
+def overhead():
+    """make bench: whole-process cost of the default scene against the FreeFEM run alone,
+    MUMPS's phases, and the first active set's effect on Newton."""
+    RESULTS_DIR.mkdir(exist_ok=True)
+    runs = overhead_runs()
+    runs.to_csv(RESULTS_DIR / "bench_overhead_runs.csv", index=False)
+    summary = overhead_summary(runs)
+    summary.to_csv(RESULTS_DIR / "bench_overhead.csv", index=False)
+    mumps = mumps_timers()
+    mumps.to_csv(RESULTS_DIR / "bench_mumps.csv", index=False)
+    first = first_active_set()
+    first.to_csv(RESULTS_DIR / "bench_first_active_set.csv", index=False)
+    print(markdown_table(overhead_table(summary)))
+    print(markdown_table(mumps_summary(mumps), digits=3))
+    print(markdown_table(first, digits=4))
+    return summary
+
+
+def overhead_table(summary):
+    """The docs table of bench_overhead.csv: medians, seconds."""
+    columns = {"command": "command", "runs": "runs", "wall_s": "wall", "cpu_s": "CPU",
+               "freefem_wall_s": "FreeFEM wall", "outside_freefem_s": "outside FreeFEM",
+               **{f"cpu_{p}": p.replace("newton_", "") for p in OVERHEAD_PHASES}}
+    table = summary[[c for c in columns if c in summary]].rename(columns=columns)
     return table
