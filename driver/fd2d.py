@@ -225,7 +225,8 @@ def summary_lines(results):
          for name, u in results.get("probes", {}).items()] + support_lines(results) + [
         f"contact: active length {contact['active_length']:.4g} of {contact['boundary_length']:.4g}, "
         f"force on body 1 ({contact['force_on_body1'][0]:.4g}, {contact['force_on_body1'][1]:.6g}), "
-        f"balance error {contact['force_balance_error']:.1e}, max pressure {contact['max_pressure']:.4g}",
+        f"balance error {contact['force_balance_error']:.1e}, max pressure {contact['max_pressure']:.4g}"
+        + (f" (recovered {contact['max_pressure_recovered']:.4g})" if "max_pressure_recovered" in contact else ""),
         f"cut elements: min ratio {cut['min_ratio_body1']:.2e} (body 1), {cut['min_ratio_body2']:.2e} (body 2); "
         f"stabilization {cut['stabilization']}: cases a/b/c = {cut['case_a']}/{cut['case_b']}/{cut['case_c']}, "
         f"sliver elements dropped {cut.get('dropped_body1', 0)} + {cut.get('dropped_body2', 0)}",

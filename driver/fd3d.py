@@ -225,7 +225,8 @@ def summary_lines(results):
          for name, u in results.get("probes", {}).items()] + support_lines(results) + [
         f"contact: active area {contact['active_area']:.4g} of {contact['boundary_area']:.4g}, "
         f"force on body 1 ({force[0]:.3g}, {force[1]:.3g}, {force[2]:.6g}), "
-        f"balance error {contact['force_balance_error']:.1e}, max pressure {contact['max_pressure']:.4g}",
+        f"balance error {contact['force_balance_error']:.1e}, max pressure {contact['max_pressure']:.4g}"
+        + (f" (recovered {contact['max_pressure_recovered']:.4g})" if "max_pressure_recovered" in contact else ""),
         f"cut elements: min ratio {cut['min_ratio_body1']:.2e} (body 1), {cut['min_ratio_body2']:.2e} (body 2); "
         f"stabilization {cut['stabilization']}: cases a/b/c = {cut['case_a']}/{cut['case_b']}/{cut['case_c']} "
         f"(per interface triangle), sliver elements dropped {cut['dropped_body1']} + {cut['dropped_body2']}",
