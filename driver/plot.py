@@ -343,18 +343,22 @@ def bodies_2d(run, scale):
     """The bodies of a 2D run: fictitious domain from fields.vtu (or per-body body1/body2.vtu),
     the foundation from its body-fitted fields.vtu."""
     per_body = [f"body{i}.vtu" for i in (1, 2)]
-    if all((run.folder / f).is_file() for f in per_body):
-        pieces = []
+    if all(run.has_output(f) for f in per_body):
+        # each body on its own submesh (a P2 run's split once: the P2 nodal values)
+        pieces, u1_field = [], None
         for i, filename in enumerate(per_body, start=1):
             mesh = read_vtu(run, filename)
             path = run.folder / filename
             tris = cells_of(mesh, path, "triangle", 3)
+            xy = np.asarray(mesh.points[:, :2], dtype=float)
             u = point_field(mesh, path, "displacement", f"u{i}", "u", size=2)
             vm = point_field(mesh, path, "von_mises")
             phi = point_field(mesh, path, "phi", f"phi{i}") if any(
                 n in mesh.point_data for n in ("phi", f"phi{i}")) else None
-            pieces.append(make_piece(f"body {i}", mesh.points[:, :2], tris, u, vm, phi, scale))
-        return pieces, None
+            pieces.append(make_piece(f"body {i}", xy, tris, u, vm, phi, scale))
+            if i == 1:
+                u1_field = (xy, tris, u)
+        return pieces, u1_field
     if not run.has_output("fields.vtu"):
         return None, None
     filename = "fields.vtu"

@@ -101,8 +101,8 @@ def bad_folders(root, run_2d):
     cases["failed"] = (failed, "failed run")
     for name, damage, words in [
         ("bad_json", lambda d: (d / "results.json").write_text("{not json"), "malformed JSON"),
-        ("bad_vtu", lambda d: (d / "fields.vtu").write_text("<VTKFile>cut short"), "unreadable VTU"),
-        ("no_vtu", lambda d: (d / "fields.vtu").unlink(), "fields.vtu: missing"),
+        ("bad_vtu", lambda d: (d / "body1.vtu").write_text("<VTKFile>cut short"), "unreadable VTU"),
+        ("no_vtu", lambda d: (d / "body2.vtu").unlink(), "body2.vtu: missing"),
         ("bad_csv", lambda d: (d / "contact_pressure.csv").write_text("x,y\n0,1\n"), "no column pressure"),
         ("no_newton", lambda d: rewrite_results(d, newton={}), "no Newton history"),
     ]:
