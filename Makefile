@@ -72,6 +72,16 @@ fd2d-study: setup
 readme:
 	$(PYTHON) -m driver readme
 
+# The contact pressure of the disk on slab (P2, theta = -1, docs/outputs.md): the
+# recovered pressure at NX = 40, 80, 160 against body-fitted P2 solutions at h = 1/320
+# (gamma0 = 1/200 and 1, computed once into runs/reference/), and the gamma0 trade-off at
+# NX = 160 (errors against the NX = 320 reference of fd2d-study): results/pressure_*.csv,
+# plots/pressure_*.png.
+.PHONY: pressure-study
+pressure-study: setup
+	$(PYTHON) -m driver study pressure-recovery pressure-gamma0
+	$(PYTHON) -m driver readme
+
 # Speed against error on the disk on slab (timings: ratios and medians belong here,
 # never in tests): results/bench*.csv (Newton grid first: not timed), plots/speed_vs_error.png.
 # Hard cases: the scenes of cases/hard/ (results/hard_cases.csv), the

@@ -252,6 +252,18 @@ def scenes_table():
 
 
 
+def pressure_recovery():
+    from driver.studies.pressure import recovery_table
+
+    return recovery_table(pd.read_csv(RESULTS / "pressure_recovery.csv"))
+
+
+def pressure_gamma0():
+    from driver.studies.pressure import gamma0_table
+
+    return gamma0_table(pd.read_csv(RESULTS / "pressure_gamma0.csv"))
+
+
 def curved_geometry():
     t = pd.read_csv(RESULTS / "curved_geometry.csv")
     wide = t.pivot_table(index=["disk", "nx"], columns="geometry",
@@ -301,6 +313,8 @@ TABLES = {
     "fd3d_convergence": fd3d_convergence,
     "fd3d_cost": fd3d_cost,
     "fd3d_adaptive": fd3d_adaptive,
+    "pressure_recovery": pressure_recovery,
+    "pressure_gamma0": pressure_gamma0,
     "curved_geometry": curved_geometry,
     "curved_convergence": curved_convergence,
     "curved_cost": curved_cost,

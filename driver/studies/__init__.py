@@ -19,6 +19,8 @@ REGISTRY = {
     "fd2d-theta1-stabilization": ("fd2d", "theta1_stabilization"),
     "fd2d-crosscheck": ("fd2d", "crosscheck"),
     "disk-pressure": ("fd2d", "pressure_profiles"),
+    "pressure-recovery": ("pressure", "recovery_vs_fitted"),
+    "pressure-gamma0": ("pressure", "gamma0_tradeoff"),
     "fd-aposteriori": ("fd2d", "aposteriori"),
     "fd3d-convergence": ("fd3d", "convergence"),
     "ball-on-slab-figure": ("fd3d", "vonmises_figure"),
