@@ -149,3 +149,22 @@ def test_recovery_on_closed_form_pressures(tmp_path):
                 coarse["h_max"] / fine["h_max"])
             assert order > 1.7, (dim, order, coarse, fine)
         assert rows[-1]["hertz_max_error"] < 0.1, (dim, rows[-1])
+
+
+def test_foundation_fields_keep_the_p2_nodes(tmp_path):
+    # The one-body foundation script writes its body-fitted mesh split once for P2, as
+    # the two-body scripts' body files: one VTU point per P2 node, the same field names.
+    from conftest import run_cli
+
+    out = tmp_path / "run"
+    proc = run_cli("run", str(REPO / "cases/patch_block.toml"), "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    results = json.loads((out / "results.json").read_text())
+    mesh = meshio.read(out / "fields.vtu")
+    assert {"displacement", "von_mises"} <= set(mesh.point_data)
+    assert len(mesh.points) == results["dofs"] // 2
+    # the patch test's solution is affine: the split mesh's midpoints carry it exactly
+    u = mesh.point_data["displacement"][:, :2]
+    design = np.c_[np.ones(len(mesh.points)), mesh.points[:, :2]]
+    fit, *_ = np.linalg.lstsq(design, u, rcond=None)
+    assert np.abs(design @ fit - u).max() < 1e-9 * np.abs(u).max()
