@@ -32,7 +32,7 @@ import pandas as pd
 from driver.errors import DriverError
 from driver.runner import REPO, freefem_binary, freefem_env, parse_json_file
 from driver.studies.fd2d import DISK, P1_GEOMETRY, QUIET, errors_against, reference
-from driver.studies.common import PLOTS_DIR, RESULTS_DIR, loglog_slope, markdown_table, progress, run_point
+from driver.studies.common import loglog_slope, markdown_table, progress, RESULTS_DIR, run_point, save_figure
 
 PHASES = ("geometry", "assembly", "newton_contact_assembly", "newton_factor_solve", "estimators", "output")
 LADDER = (10, 20, 40, 80, 160)
@@ -227,10 +227,7 @@ def plot(table):
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     ax.set_title(f"disk on slab, theta = -1: error against time (make bench)\n{machine()}", fontsize=9)
-    fig.tight_layout()
-    PLOTS_DIR.mkdir(exist_ok=True)
-    fig.savefig(PLOTS_DIR / "speed_vs_error.png", dpi=110)
-    print(f"wrote {PLOTS_DIR / 'speed_vs_error.png'}")
+    save_figure(fig, "speed_vs_error.png")
 
 
 def bench():

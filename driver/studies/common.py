@@ -64,6 +64,20 @@ def cached_reference(folder, what, compute):
     return folder
 
 
+def save_figure(fig, name, dpi=110, tight=True):
+    """Write a study's figure to plots/NAME (the folder made if needed), close it, say so."""
+    import matplotlib.pyplot as plt
+
+    if tight:
+        fig.tight_layout()
+    PLOTS_DIR.mkdir(exist_ok=True)
+    path = PLOTS_DIR / name
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    print(f"wrote {path}")
+    return path
+
+
 def loglog_slope(x, y):
     x, y = np.log(np.asarray(x, float)), np.log(np.asarray(y, float))
     return float(np.polyfit(x, y, 1)[0])

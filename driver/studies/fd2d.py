@@ -14,8 +14,8 @@ import pandas as pd
 from driver.errors import DriverError
 from driver.runner import REPO, run_command, run_freefem_tool, run_scene
 from driver.scene import load_scene
-from driver.studies.common import (PLOTS_DIR, RESULTS_DIR, cached_reference, loglog_slope, markdown_table, progress,
-                                   run_point, tool_errors)
+from driver.studies.common import (cached_reference, loglog_slope, markdown_table, progress, RESULTS_DIR, run_point,
+                                   save_figure, tool_errors)
 from driver.sweep import file_digest, run_points, task_point
 
 DISK = REPO / "cases" / "disk_on_slab.toml"
@@ -159,10 +159,7 @@ def plot_convergence(table, name, title, group_keys=("degree", "theta"), label=N
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
     fig.suptitle(title)
-    fig.tight_layout()
-    PLOTS_DIR.mkdir(exist_ok=True)
-    fig.savefig(PLOTS_DIR / name, dpi=110)
-    print(f"wrote {PLOTS_DIR / name}")
+    save_figure(fig, name)
 
 
 def gamma0_sweep():
@@ -206,9 +203,7 @@ def plot_gamma0(table):
     ax2.grid(True, which="both", alpha=0.3)
     ax2.legend(fontsize=7)
     fig.suptitle(f"disk on slab: influence of gamma0 (reference P2 NX = {REFERENCE_NX}; make fd2d-study)")
-    fig.tight_layout()
-    fig.savefig(PLOTS_DIR / "fd2d_gamma0.png", dpi=110)
-    print(f"wrote {PLOTS_DIR / 'fd2d_gamma0.png'}")
+    save_figure(fig, "fd2d_gamma0.png")
 
 
 def sliver_shift(nx, epsilon=1e-6):
@@ -360,9 +355,7 @@ def pressure_profiles():
         ax.legend(fontsize=8)
     axes[0].set_ylabel("contact pressure (Nitsche multiplier, > 0 in compression)")
     fig.suptitle("disk on slab, P2, theta = -1, gamma0 = 1/200 (make fd2d-study)")
-    fig.tight_layout()
-    fig.savefig(PLOTS_DIR / "disk_on_slab_pressure.png", dpi=110)
-    print(f"wrote {PLOTS_DIR / 'disk_on_slab_pressure.png'}")
+    save_figure(fig, "disk_on_slab_pressure.png")
 
 
 
@@ -443,8 +436,6 @@ def aposteriori():
     ax2.legend()
     fig.suptitle("disk on slab (fictitious domain), P2, theta = -1, ghost penalty: eta_1..eta_5 "
                  "(make fd2d-study)")
-    fig.tight_layout()
-    fig.savefig(PLOTS_DIR / "fd_adaptive.png", dpi=110)
-    print(f"wrote {PLOTS_DIR / 'fd_adaptive.png'}")
+    save_figure(fig, "fd_adaptive.png")
     return table
 

@@ -17,7 +17,7 @@ from driver.errors import DriverError, SceneError
 from driver.studies.fd2d import rates_of
 from driver.runner import REPO, parse_json_file, run_scene
 from driver.scene import load_scene
-from driver.studies.common import (PLOTS_DIR, RESULTS_DIR, cached_reference, loglog_slope, markdown_table, progress,
+from driver.studies.common import (cached_reference, loglog_slope, markdown_table, progress, RESULTS_DIR, save_figure,
                                    tool_errors)
 
 BALL = REPO / "cases" / "ball_on_slab.toml"
@@ -259,11 +259,7 @@ def plot_convergence(table, costs):
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
     fig.suptitle(f"ball on slab 3D, gamma0 = 1/200: errors against {reference_label()} (make fd3d-study)", fontsize=9)
-    fig.tight_layout()
-    PLOTS_DIR.mkdir(exist_ok=True)
-    fig.savefig(PLOTS_DIR / "fd3d_convergence.png", dpi=120)
-    plt.close(fig)
-    print(f"wrote {PLOTS_DIR / 'fd3d_convergence.png'}")
+    save_figure(fig, "fd3d_convergence.png", dpi=120)
 
 
 FIGURE_SETTINGS = ["method.degree=2", "method.theta=-1", "mesh.nx=10", f"mesh.grade_h={1 / 40!r}",
@@ -320,8 +316,5 @@ def vonmises_figure(folder=None, scale=3.0):
     graded = f", graded to 1/{1 / results['grade_h']:.0f}" if results.get("grade_h") else ""
     ax.set_title(f"ball on slab, plane y = 0, P{results['degree']} nx = {results['nx']}{graded}\n"
                  f"displacement x {scale:g}; centre u_z = {results['probes']['centre'][2]:.4f}")
-    PLOTS_DIR.mkdir(exist_ok=True)
-    fig.savefig(PLOTS_DIR / "ball_on_slab_vonmises.png", dpi=130)
-    plt.close(fig)
-    print(f"wrote {PLOTS_DIR / 'ball_on_slab_vonmises.png'}")
+    save_figure(fig, "ball_on_slab_vonmises.png", dpi=130, tight=False)
 

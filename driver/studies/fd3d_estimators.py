@@ -9,7 +9,7 @@ import os
 import pandas as pd
 
 from driver.runner import REPO
-from driver.studies.common import PLOTS_DIR, RESULTS_DIR, loglog_slope, markdown_table, progress, run_point
+from driver.studies.common import loglog_slope, markdown_table, progress, RESULTS_DIR, run_point, save_figure
 
 BALL = REPO / "cases" / "ball_on_slab.toml"
 QUIET = ["output.vtu=false", "output.csv=false"]
@@ -72,8 +72,5 @@ def plot(table, slopes):
     ax.set_title("Ball on slab, P1: eta, uniform vs tetgen-adaptive", fontsize=10)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
-    PLOTS_DIR.mkdir(exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(PLOTS_DIR / "fd3d_adaptive.png", dpi=120)
-    plt.close(fig)
+    save_figure(fig, "fd3d_adaptive.png", dpi=120)
 

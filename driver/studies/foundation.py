@@ -12,8 +12,8 @@ import pandas as pd
 from driver.errors import DriverError
 from driver.runner import REPO, run_scene
 from driver.scene import load_scene
-from driver.studies.common import (PLOTS_DIR, RESULTS_DIR, cached_reference, loglog_slope, markdown_table, progress,
-                                   run_point)
+from driver.studies.common import (cached_reference, loglog_slope, markdown_table, progress, RESULTS_DIR, run_point,
+                                   save_figure)
 
 
 def foundation_newton_table():
@@ -66,11 +66,7 @@ def square_pressure_plot():
     lines = ax.get_lines() + ax2.get_lines()
     ax.legend(lines, [line.get_label() for line in lines], loc="upper right")
     ax.set_title("square with slip and separation, P2, h = 1/32, theta = -1")
-    fig.tight_layout()
-    PLOTS_DIR.mkdir(exist_ok=True)
-    path = PLOTS_DIR / "square_contact_pressure.png"
-    fig.savefig(path, dpi=120)
-    print(f"wrote {path}")
+    save_figure(fig, "square_contact_pressure.png", dpi=120)
 
 
 
@@ -176,10 +172,7 @@ def plot_aposteriori_uniform(table):
         ax.legend(fontsize=7)
     fig.suptitle("square with slip and separation, uniform P2 meshes h = 1/8 ... 1/80 "
                  "(make aposteriori-study)")
-    fig.tight_layout()
-    PLOTS_DIR.mkdir(exist_ok=True)
-    fig.savefig(PLOTS_DIR / "aposteriori_convergence.png", dpi=110)
-    print(f"wrote {PLOTS_DIR / 'aposteriori_convergence.png'}")
+    save_figure(fig, "aposteriori_convergence.png")
 
 
 def aposteriori_adaptive():
@@ -239,9 +232,7 @@ def aposteriori_adaptive():
     ax2.legend()
     ax2.grid(True, which="both", alpha=0.3)
     fig.suptitle("square with slip and separation: adaptive vs uniform (make aposteriori-study)")
-    fig.tight_layout()
-    fig.savefig(PLOTS_DIR / "aposteriori_adaptive.png", dpi=110)
-    print(f"wrote {PLOTS_DIR / 'aposteriori_adaptive.png'}")
+    save_figure(fig, "aposteriori_adaptive.png")
     return table
 
 
@@ -273,8 +264,6 @@ def square_adapted_vonmises():
     ax2.set_aspect("equal")
     ax2.set_title("von Mises stress (P2, theta = -1, gamma0 = 1/E)")
     fig.suptitle("square with slip and separation after 7 adaptation steps (make aposteriori-study)")
-    fig.tight_layout()
-    fig.savefig(PLOTS_DIR / "square_adapted_vonmises.png", dpi=110)
-    print(f"wrote {PLOTS_DIR / 'square_adapted_vonmises.png'}")
+    save_figure(fig, "square_adapted_vonmises.png")
 
 

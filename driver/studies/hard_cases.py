@@ -11,7 +11,7 @@ import pandas as pd
 
 from driver.errors import DriverError
 from driver.runner import REPO
-from driver.studies.common import PLOTS_DIR, RESULTS_DIR, markdown_table, progress, run_point
+from driver.studies.common import markdown_table, progress, RESULTS_DIR, run_point, save_figure
 
 HARD = REPO / "cases" / "hard"
 # Measured on the P1 cut geometry (results/hard_*.csv), which the study pins with a
@@ -265,8 +265,5 @@ def plot_conditioning(table):
         ax.legend(fontsize=8)
     axes[0].set_ylabel("cond_1 estimate of the Newton matrix (free DOFs)")
     fig.suptitle("disk on slab, disk moved sideways: conditioning against the cut (make hard-study)")
-    fig.tight_layout()
-    PLOTS_DIR.mkdir(exist_ok=True)
-    fig.savefig(PLOTS_DIR / "conditioning.png", dpi=110)
-    print(f"wrote {PLOTS_DIR / 'conditioning.png'}")
+    save_figure(fig, "conditioning.png")
 

@@ -18,7 +18,7 @@ import pandas as pd
 
 from driver.errors import DriverError
 from driver.runner import REPO, run_freefem_tool
-from driver.studies.common import PLOTS_DIR, RESULTS_DIR, cached_reference, markdown_table, progress, run_point
+from driver.studies.common import cached_reference, markdown_table, progress, RESULTS_DIR, run_point, save_figure
 from driver.studies.fd2d import DISK, REFERENCE_NX, errors_against, fitted_meshes, reference
 
 FITTED_H = 320                     # body-fitted meshes, h = 1/320 (P2)
@@ -181,10 +181,7 @@ def plot_recovery(profiles, ref):
     ax.set_ylabel("contact pressure (positive in compression)")
     fig.suptitle("disk on slab, P2, theta = -1, gamma0 = 1/200, curved cut geometry: recovered contact pressure "
                  "(make pressure-study)")
-    fig.tight_layout()
-    PLOTS_DIR.mkdir(exist_ok=True)
-    fig.savefig(PLOTS_DIR / "pressure_recovery.png", dpi=110)
-    print(f"wrote {PLOTS_DIR / 'pressure_recovery.png'}")
+    save_figure(fig, "pressure_recovery.png")
 
 
 def gamma0_tradeoff():
@@ -248,9 +245,7 @@ def plot_gamma0(table):
     ax2.legend(fontsize=8)
     fig.suptitle(f"disk on slab, P2, theta = -1, NX = {TARGET_NX}, curved cut geometry: the gamma0 trade-off "
                  "(make pressure-study)")
-    fig.tight_layout()
-    fig.savefig(PLOTS_DIR / "pressure_gamma0.png", dpi=110)
-    print(f"wrote {PLOTS_DIR / 'pressure_gamma0.png'}")
+    save_figure(fig, "pressure_gamma0.png")
 
 
 def percent(value):
