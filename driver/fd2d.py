@@ -17,13 +17,10 @@ both); adapt.steps > 0 needs output.estimators; a Nitsche hold needs
 gamma_scaling shear or none.
 """
 
-from pathlib import Path
-
 import numpy as np
 
 from driver.errors import SceneError
-from driver.materials import body_lame
-from driver.scene_module import Bodies, fill_legacy, legacy_probe, legacy_supports, support_lines
+from driver.scene_module import check_two_bodies, support_lines
 from driver.scene_module import scene_module  # noqa: F401  (the runner calls module.scene_module)
 from driver.scene import SCENE_HEADER
 from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_declared,
@@ -141,32 +138,17 @@ LEGACY_SHAPES = {"body1": "disk", "body2": "slab"}
 
 
 def check(scene, source):
-    geo = scene["geometry"]
-    if not (geo["xmax"] > geo["xmin"] and geo["ymax"] > geo["ymin"]):
-        raise SceneError(f"{source}: key 'geometry': the box is empty (need xmax > xmin, ymax > ymin)")
-    for key in ("body1", "body2"):
-        scene[key]["lame"] = body_lame(scene[key], source, key)
-    fill_legacy(scene, source, LEGACY_SHAPES, LEGACY_KEYS)
-    slab = scene["body2"]
+    bodies = check_two_bodies(scene, source, 2, LEGACY_SHAPES, LEGACY_KEYS)
+    geo, slab = scene["geometry"], scene["body2"]
     line = slab["bottom_line"]
-    if isinstance(slab["shape"], str):
-        if not geo["ymin"] < slab["top"] < geo["ymax"]:
-            raise SceneError(f"{source}: key 'body2.top': the slab top {slab['top']} misses the box "
-                             f"({geo['ymin']}, {geo['ymax']})")
-        if line:
-            if len(line) != 2:
-                raise SceneError(f"{source}: key 'body2.bottom_line': expected [a, b] (y = a + b x), got {line}")
-            a, b = line
-            ends = (a + b * geo["xmin"], a + b * geo["xmax"])
-            if not all(geo["ymin"] <= y < slab["top"] for y in ends):
-                raise SceneError(f"{source}: key 'body2.bottom_line': the line y = {a:g} + {b:g} x must cross "
-                                 f"the box between its bottom and the slab top")
-    legacy_supports(scene, 2)
-    legacy_probe(scene)
-    bodies = Bodies(scene, 2, source, Path(source).parent)
-    scene["_bodies"] = bodies
-    if scene["adapt"]["steps"] > 0 and not scene["output"]["estimators"]:
-        raise SceneError(f"{source}: key 'output.estimators': adaptation (adapt.steps > 0) needs the estimators")
+    if isinstance(slab["shape"], str) and line:
+        if len(line) != 2:
+            raise SceneError(f"{source}: key 'body2.bottom_line': expected [a, b] (y = a + b x), got {line}")
+        a, b = line
+        ends = (a + b * geo["xmin"], a + b * geo["xmax"])
+        if not all(geo["ymin"] <= y < slab["top"] for y in ends):
+            raise SceneError(f"{source}: key 'body2.bottom_line': the line y = {a:g} + {b:g} x must cross "
+                             f"the box between its bottom and the slab top")
     nitsche_hold = any("region" in h for holds in bodies.holds for h in holds)
     if nitsche_hold and scene["method"]["gamma_scaling"] not in ("none", "shear"):
         raise SceneError(f"{source}: key 'method.gamma_scaling': {scene['method']['gamma_scaling']!r} scales "

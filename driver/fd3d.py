@@ -18,14 +18,11 @@ body gives lambda and mu or E and nu (not both); adapt.steps > 0 needs
 output.estimators; adapt.switch starts with r, holds a and no p.
 """
 
-from pathlib import Path
-
 import numpy as np
 
 from driver.errors import SceneError
 from driver.fd2d import body_schema
-from driver.materials import body_lame
-from driver.scene_module import Bodies, fill_legacy, legacy_probe, legacy_supports, support_lines
+from driver.scene_module import check_two_bodies, support_lines
 from driver.scene_module import scene_module  # noqa: F401  (the runner calls module.scene_module)
 from driver.scene import SCENE_HEADER
 from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, at_least, positive, put_declared,
@@ -126,23 +123,7 @@ def default_fix_points(bodies):
 
 
 def check(scene, source):
-    geo = scene["geometry"]
-    lo = [geo["xmin"], geo["ymin"], geo["zmin"]]
-    hi = [geo["xmax"], geo["ymax"], geo["zmax"]]
-    if not all(h > l for l, h in zip(lo, hi)):
-        raise SceneError(f"{source}: key 'geometry': the box is empty (need max > min on every axis)")
-    for key in ("body1", "body2"):
-        scene[key]["lame"] = body_lame(scene[key], source, key)
-    fill_legacy(scene, source, LEGACY_SHAPES, LEGACY_KEYS)
-    if isinstance(scene["body2"]["shape"], str) and not geo["zmin"] < scene["body2"]["top"] < geo["zmax"]:
-        raise SceneError(f"{source}: key 'body2.top': the slab top {scene['body2']['top']} misses the box "
-                         f"({geo['zmin']}, {geo['zmax']})")
-    legacy_supports(scene, 3)
-    legacy_probe(scene)
-    bodies = Bodies(scene, 3, source, Path(source).parent)
-    scene["_bodies"] = bodies
-    if scene["adapt"]["steps"] > 0 and not scene["output"]["estimators"]:
-        raise SceneError(f"{source}: key 'adapt.steps': adaptation needs output.estimators = true")
+    bodies = check_two_bodies(scene, source, 3, LEGACY_SHAPES, LEGACY_KEYS)
     if not scene["adapt"]["switch"].startswith("r") or "a" not in scene["adapt"]["switch"] or "p" in scene["adapt"]["switch"]:
         raise SceneError(f"{source}: key 'adapt.switch': tetgreconstruction needs 'r' first, 'a', and no 'p'")
     rigid = scene["rigid"]

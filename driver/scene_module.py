@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from driver.errors import SceneError
+from driver.materials import body_lame
 from driver.geometry import Boolean, Disk, HalfSpace, fmt, placed_measure, read_shape, sample_grid
 
 FACES = {"ymin": 1, "xmax": 2, "ymax": 3, "xmin": 4, "zmin": 5, "zmax": 6}
@@ -333,6 +334,31 @@ def fill_legacy(scene, source, shapes, defaults):
             elif not legacy:
                 raise SceneError(f"{source}: key '{key}.{name}': belongs to the legacy shape "
                                  f"{shapes[key]!r}, not to a shape table")
+
+
+def check_two_bodies(scene, source, dim, legacy_shapes, legacy_keys):
+    """The checks the 2D and 3D fictitious-domain scenes share: a box of positive size,
+    each body's Lame coefficients, the legacy keys filled, the legacy slab's top inside
+    the box (along its last axis), the legacy supports and probe, the bodies (kept as
+    scene["_bodies"]); adaptation needs the estimators. Returns the bodies."""
+    geo = scene["geometry"]
+    axes = "xyz"[:dim]
+    if not all(geo[f"{a}max"] > geo[f"{a}min"] for a in axes):
+        raise SceneError(f"{source}: key 'geometry': the box is empty (need max > min on every axis)")
+    for key in ("body1", "body2"):
+        scene[key]["lame"] = body_lame(scene[key], source, key)
+    fill_legacy(scene, source, legacy_shapes, legacy_keys)
+    slab, vertical = scene["body2"], axes[-1]
+    if isinstance(slab["shape"], str) and not geo[f"{vertical}min"] < slab["top"] < geo[f"{vertical}max"]:
+        raise SceneError(f"{source}: key 'body2.top': the slab top {slab['top']} misses the box "
+                         f"({geo[vertical + 'min']}, {geo[vertical + 'max']})")
+    legacy_supports(scene, dim)
+    legacy_probe(scene)
+    bodies = Bodies(scene, dim, source, Path(source).parent)
+    scene["_bodies"] = bodies
+    if scene["adapt"]["steps"] > 0 and not scene["output"]["estimators"]:
+        raise SceneError(f"{source}: key 'adapt.steps': adaptation (adapt.steps > 0) needs output.estimators = true")
+    return bodies
 
 
 def legacy_probe(scene):
