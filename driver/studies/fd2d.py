@@ -286,19 +286,21 @@ def fitted_meshes(folder, h):
     return meshes
 
 
-def fitted_reference():
-    """The disk on slab on body-fitted gmsh meshes (P2, theta = -1)."""
-    folder = REPO / "runs" / "reference" / f"disk_on_slab_fitted_h{FITTED_H}"
+def fitted_reference(gamma0=1 / 200):
+    """The disk on slab on body-fitted gmsh meshes (P2, theta = -1), saved (for
+    fd_vs_fitted_2d.edp) with its contact_pressure.csv (for the pressure study)."""
+    folder = REPO / "runs" / "reference" / f"disk_on_slab_fitted_h{FITTED_H}_gamma0_{gamma0:g}"
 
     def compute():
         folder.mkdir(parents=True, exist_ok=True)
         disk, slab = fitted_meshes(folder, 1.0 / FITTED_H)
         run_freefem_tool("fitted_two_body_2d.edp", ["-h", repr(1.0 / FITTED_H), "-mesh1", str(disk),
-                                                    "-mesh2", str(slab), "-save", "1", "-vtu", "0",
-                                                    "-csv", "0", "-outdir", str(folder)],
+                                                    "-mesh2", str(slab), "-theta", "-1", "-gamma0", repr(gamma0),
+                                                    "-save", "1", "-vtu", "0", "-csv", "1", "-outdir", str(folder)],
                          folder / "results.json", "body-fitted disk on slab")
 
-    return cached_reference(folder, f"the body-fitted disk on slab (P2, h = 1/{FITTED_H})", compute)
+    return cached_reference(folder, f"the body-fitted disk on slab (P2, h = 1/{FITTED_H}, gamma0 = {gamma0:g})",
+                            compute)
 
 
 def crosscheck():

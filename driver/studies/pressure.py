@@ -17,11 +17,9 @@ import numpy as np
 import pandas as pd
 
 from driver.errors import DriverError
-from driver.runner import REPO, run_freefem_tool
-from driver.studies.common import cached_reference, markdown_table, progress, RESULTS_DIR, run_point, save_figure
-from driver.studies.fd2d import DISK, REFERENCE_NX, errors_against, fitted_meshes, reference
+from driver.studies.common import markdown_table, progress, RESULTS_DIR, run_point, save_figure
+from driver.studies.fd2d import DISK, FITTED_H, REFERENCE_NX, errors_against, fitted_reference, reference
 
-FITTED_H = 320                     # body-fitted meshes, h = 1/320 (P2)
 TARGET_NX = 160
 LADDER = (40, 80, 160)
 GAMMA0S = (1 / 200, 1 / 100, 1 / 50, 1 / 20, 1 / 10, 1 / 5, 1 / 2, 1)
@@ -30,23 +28,6 @@ TARGET = 0.03                      # the recovered pressure within 3 % of the re
 # the scene's own settings, stated: the study depends on them
 SCENE_SETTINGS = ["method.theta=-1", "method.degree=2", "method.geometry='curved'"]
 OUTPUTS = ["output.vtu=false", "output.pressure_csv=true"]
-
-
-def fitted_reference(gamma0=1 / 200):
-    """The disk on slab on body-fitted gmsh meshes (P2, theta = -1) with its contact_pressure.csv."""
-    tag = "" if gamma0 == 1 / 200 else f"_g{gamma0:g}"
-    folder = REPO / "runs" / "reference" / f"disk_on_slab_fitted_h{FITTED_H}_pressure{tag}"
-
-    def compute():
-        folder.mkdir(parents=True, exist_ok=True)
-        disk, slab = fitted_meshes(folder, 1.0 / FITTED_H)
-        run_freefem_tool("fitted_two_body_2d.edp", ["-h", repr(1.0 / FITTED_H), "-mesh1", str(disk),
-                                                    "-mesh2", str(slab), "-theta", "-1", "-gamma0", repr(gamma0),
-                                                    "-csv", "1", "-vtu", "0", "-outdir", str(folder)],
-                         folder / "results.json", "body-fitted disk on slab")
-
-    return cached_reference(folder, f"the body-fitted disk on slab (P2, h = 1/{FITTED_H}, gamma0 = {gamma0:g}) "
-                                    "with its pressure", compute)
 
 
 def lower_contact(folder):
