@@ -532,6 +532,41 @@ def save(fig, run, filename):
     return target
 
 
+def section_panels(run, pieces, norm, cmap, contact, zoom, contact_label, marker_sizes, labels, limits, h):
+    """The deformed pieces coloured by von Mises over the whole box (limits: the box's two
+    in-plane ranges, or None) and, when zoom, beside it a zoom on the active contact
+    points (drawn in red, marker_sizes for the two panels), with one colour bar."""
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2 if zoom else 1, figsize=(12 if zoom else 7, 5.6),
+                             squeeze=False, layout="constrained")
+    axes = axes[0]
+    for k, ax in enumerate(axes):
+        image = draw_pieces(ax, pieces, norm, cmap)
+        if contact is not None:
+            ax.plot(contact[:, 0], contact[:, 1], ".", color="red", ms=marker_sizes[1] if k else marker_sizes[0],
+                    label=contact_label)
+        ax.set_xlabel(labels[0])
+        ax.set_ylabel(labels[1])
+    if limits is not None:
+        (x0, x1), (y0, y1) = limits
+        pad = 0.02 * (x1 - x0)
+        axes[0].set_xlim(x0 - pad, x1 + pad)
+        axes[0].set_ylim(y0 - pad, y1 + pad)
+    axes[0].set_title("whole box", fontsize=9)
+    if zoom:
+        lo, hi = contact.min(axis=0), contact.max(axis=0)
+        xlim, ylim = zoom_box((lo + hi) / 2, hi - lo, h)
+        axes[1].set_xlim(*xlim)
+        axes[1].set_ylim(*ylim)
+        axes[1].set_title("the contact zone", fontsize=9)
+    if contact is not None:
+        axes[-1].legend(loc="upper right", fontsize=8)
+    if image is not None:
+        fig.colorbar(image, ax=list(axes), label=f"von Mises stress [{run.stress}]", shrink=0.9)
+    return fig
+
+
 def mesh_step(run):
     """The background mesh step h (box width / nx), else results.json h_max."""
     for key in ("h", "h_max"):
@@ -567,31 +602,11 @@ def figure_deformed_2d(run, pieces, u1_field, frame, scale):
     geometry = run.scene.get("geometry") or {}
     width = geometry.get("xmax", 1.0) - geometry.get("xmin", 0.0) if geometry else 1.0
     zoom = contact is not None and np.ptp(contact, axis=0).max() < 0.4 * width
-    fig, axes = plt.subplots(1, 2 if zoom else 1, figsize=(12 if zoom else 7, 5.6),
-                             squeeze=False, layout="constrained")
-    axes = axes[0]
-    for k, ax in enumerate(axes):
-        image = draw_pieces(ax, pieces, norm, cmap)
-        if contact is not None:
-            ax.plot(contact[:, 0], contact[:, 1], ".", color="red", ms=2.5 if k else 1.5,
-                    label=f"active contact ({len(contact)} points)")
-        ax.set_xlabel(run.axis("x"))
-        ax.set_ylabel(run.axis("y"))
-    if all(k in geometry for k in ("xmin", "xmax", "ymin", "ymax")):
-        pad = 0.02 * (geometry["xmax"] - geometry["xmin"])
-        axes[0].set_xlim(geometry["xmin"] - pad, geometry["xmax"] + pad)
-        axes[0].set_ylim(geometry["ymin"] - pad, geometry["ymax"] + pad)
-    axes[0].set_title("whole box", fontsize=9)
-    if zoom:
-        lo, hi = contact.min(axis=0), contact.max(axis=0)
-        xlim, ylim = zoom_box((lo + hi) / 2, hi - lo, h)
-        axes[1].set_xlim(*xlim)
-        axes[1].set_ylim(*ylim)
-        axes[1].set_title("the contact zone", fontsize=9)
-    if contact is not None:
-        axes[-1].legend(loc="upper right", fontsize=8)
-    if image is not None:
-        fig.colorbar(image, ax=list(axes), label=f"von Mises stress [{run.stress}]", shrink=0.9)
+    limits = [(geometry[f"{a}min"], geometry[f"{a}max"]) for a in "xy"] \
+        if all(k in geometry for k in ("xmin", "xmax", "ymin", "ymax")) else None
+    label = f"active contact ({len(contact) if contact is not None else 0} points)"
+    fig = section_panels(run, pieces, norm, cmap, contact, zoom, label, (1.5, 2.5), (run.axis("x"), run.axis("y")),
+                         limits, h)
     scale_text = "true scale" if scale == 1 else f"displacement x {scale:g}"
     what = "deformed body" if len(pieces) == 1 else "deformed bodies"
     title(fig, run, f"{what} ({scale_text}) coloured by von Mises stress, contact zone in red")
@@ -793,32 +808,13 @@ def figure_cut_3d(run, meshes, plane, frame, scale):
                 near = nearest(sec[:, :3], pts)
                 pts = pts + scale * sec[near, 3:6]
             contact = pts[:, inplane]
-    fig, axes = plt.subplots(1, 2 if contact is not None else 1, figsize=(12 if contact is not None else 7, 5.6),
-                             squeeze=False, layout="constrained")
-    axes = axes[0]
-    for k, ax in enumerate(axes):
-        image = draw_pieces(ax, pieces, norm, cmap)
-        if contact is not None:
-            ax.plot(contact[:, 0], contact[:, 1], ".", color="red", ms=3 if k else 2,
-                    label=f"active contact points within h/2 of the plane ({len(contact)})")
-        ax.set_xlabel(run.axis(names[inplane[0]]))
-        ax.set_ylabel(run.axis(names[inplane[1]]))
     geometry = run.scene.get("geometry") or {}
-    lims = [(geometry.get(f"{names[k]}min"), geometry.get(f"{names[k]}max")) for k in inplane]
-    if all(isinstance(v, (int, float)) for pair in lims for v in pair):
-        pad = 0.02 * (lims[0][1] - lims[0][0])
-        axes[0].set_xlim(lims[0][0] - pad, lims[0][1] + pad)
-        axes[0].set_ylim(lims[1][0] - pad, lims[1][1] + pad)
-    axes[0].set_title("whole box", fontsize=9)
-    if contact is not None:
-        lo, hi = contact.min(axis=0), contact.max(axis=0)
-        xlim, ylim = zoom_box((lo + hi) / 2, hi - lo, h)
-        axes[1].set_xlim(*xlim)
-        axes[1].set_ylim(*ylim)
-        axes[1].set_title("the contact zone", fontsize=9)
-        axes[1].legend(loc="upper right", fontsize=8)
-    if image is not None:
-        fig.colorbar(image, ax=list(axes), label=f"von Mises stress [{run.stress}]", shrink=0.9)
+    limits = [(geometry.get(f"{names[k]}min"), geometry.get(f"{names[k]}max")) for k in inplane]
+    if not all(isinstance(v, (int, float)) for pair in limits for v in pair):
+        limits = None
+    label = f"active contact points within h/2 of the plane ({len(contact) if contact is not None else 0})"
+    fig = section_panels(run, pieces, norm, cmap, contact, contact is not None, label, (2, 3),
+                         (run.axis(names[inplane[0]]), run.axis(names[inplane[1]])), limits, h)
     scale_text = "true scale" if scale == 1 else f"displacement x {scale:g}"
     title(fig, run, f"cut {names[axis]} = {level:.4g} ({scale_text}) coloured by von Mises stress, contact in red")
     return save(fig, run, f"plot_cut_{names[axis]}{level:.4g}.png")
