@@ -50,24 +50,22 @@ def written(proc):
     return [line for line in proc.stdout.splitlines() if line]
 
 
-def test_plot_2d(run_2d):
-    proc = plot(run_2d)
+def assert_plotted(proc, folder, names):
+    """The plot command succeeded, printed exactly these files in order, each a PNG."""
     assert proc.returncode == 0, proc.stderr
-    names = ["plot_deformed.png", "plot_pressure.png", "plot_newton.png"]
-    assert written(proc) == [str(run_2d / n) for n in names]
+    assert written(proc) == [str(folder / n) for n in names]
     for name in names:
-        check_png(run_2d / name)
+        check_png(folder / name)
+
+
+def test_plot_2d(run_2d):
+    assert_plotted(plot(run_2d), run_2d, ["plot_deformed.png", "plot_pressure.png", "plot_newton.png"])
     assert not list(run_2d.glob(".plot-*")), "a temporary file was left behind"
 
 
 def test_plot_3d_default_plane_and_chosen_plane(run_3d):
-    proc = plot(run_3d)
-    assert proc.returncode == 0, proc.stderr
     # the ball touches the slab at (0, 0, -0.25): the default cut is y = 0
-    names = ["plot_cut_y0.png", "plot_pressure.png", "plot_newton.png"]
-    assert written(proc) == [str(run_3d / n) for n in names]
-    for name in names:
-        check_png(run_3d / name)
+    assert_plotted(plot(run_3d), run_3d, ["plot_cut_y0.png", "plot_pressure.png", "plot_newton.png"])
     proc = plot(run_3d, "--plane", "x=0.05", "--scale", "5")
     assert proc.returncode == 0, proc.stderr
     check_png(run_3d / "plot_cut_x0.05.png")
