@@ -67,3 +67,24 @@ def test_p2_ladder_converges_on_the_curved_geometry(tmp_path):
     # NX = 80 against the NX = 320 reference: the target is 0.03 % (P1 geometry: 0.22 %)
     assert abs(u[80] - CENTRE_UY_REF) / abs(CENTRE_UY_REF) < 2.6e-4   # measured 2.29e-4
 
+
+
+def test_ball_volume_and_area_3d(tmp_path):
+    # FreeFem++ -nw -v 0 freefem/tools/curved_geometry_check_3d.edp -levels 2
+    # (results/curved_geometry_3d.csv via make curved-study): balls at nx = 8 and 16.
+    csv = tmp_path / "geometry3d.csv"
+    proc = run_freefem("tools/curved_geometry_check_3d.edp", "-levels", 2, "-out", csv)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    rows = pd.read_csv(csv).set_index(["ball", "nx", "geometry"])
+    scene, offgrid = rows.loc[("scene_ball", 16, "curved")], rows.loc[("offgrid_ball", 16, "curved")]
+    assert abs(scene["volume_rel_err"]) < 1e-6          # measured -3.5e-7 (6 vertices on the sphere)
+    assert abs(scene["area_rel_err"]) < 3e-7            # 9.7e-8
+    assert abs(scene["poly_rel_err"]) < 7e-7            # 2.2e-7
+    # the ball off the grid has cells the surface enters without a vertex inside
+    # (split into eight): measured 1.6e-5, 1.8e-4, 7.4e-5
+    assert abs(offgrid["volume_rel_err"]) < 5e-5
+    assert abs(offgrid["area_rel_err"]) < 5e-4
+    assert abs(offgrid["poly_rel_err"]) < 2e-4
+    # the P1 polyhedra, for scale: -3.1e-2 and -2.7e-2 in volume
+    assert abs(rows.loc[("scene_ball", 16, "p1")]["volume_rel_err"]) > 2e-2
+    assert abs(rows.loc[("offgrid_ball", 16, "p1")]["volume_rel_err"]) > 2e-2
