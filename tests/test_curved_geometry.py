@@ -88,3 +88,30 @@ def test_ball_volume_and_area_3d(tmp_path):
     # the P1 polyhedra, for scale: -3.1e-2 and -2.7e-2 in volume
     assert abs(rows.loc[("scene_ball", 16, "p1")]["volume_rel_err"]) > 2e-2
     assert abs(rows.loc[("offgrid_ball", 16, "p1")]["volume_rel_err"]) > 2e-2
+
+
+def test_3d_solver_on_the_curved_geometry(tmp_path):
+    # FreeFem++ -nw -v 0 freefem/fd_contact_3d.edp -nx 8 -geometry curved (ball on slab, P1)
+    results = {}
+    for geometry in ("curved", "p1"):
+        out = tmp_path / geometry
+        proc = run_freefem("fd_contact_3d.edp", "-nx", 8, "-geometry", geometry, "-estimators", 0,
+                           "-vtu", 0, "-csv", 0, "-outdir", out)
+        assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+        results[geometry] = json.loads((out / "results.json").read_text())
+    def volume_error(r):
+        v = r["volumes"]
+        return (v["body1"] - v["body1_exact"]) / v["body1_exact"]
+    assert abs(volume_error(results["curved"])) < 3e-4      # measured -1.83e-4 (the tool's figure)
+    assert volume_error(results["p1"]) == pytest.approx(-0.1265, rel=1e-3)
+    curved = results["curved"]
+    assert curved["balance"]["balance_error"] < 1e-7         # 2.2e-8
+    assert curved["newton"]["residual"][-1] < 1e-12
+    # the load the contact carries is the body force (f_z = -0.1) on the curved volume
+    assert curved["contact"]["force_on_body1"][2] == pytest.approx(0.1 * curved["volumes"]["body1"], rel=1e-6)
+
+
+def test_3d_geometry_flag_is_checked(tmp_path):
+    proc = run_freefem("fd_contact_3d.edp", "-nx", 4, "-geometry", "p2", "-outdir", tmp_path / "bad")
+    assert proc.returncode != 0
+    assert "geometry must be p1 or curved" in proc.stdout + proc.stderr
