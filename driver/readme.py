@@ -264,16 +264,30 @@ def pressure_gamma0():
     return gamma0_table(pd.read_csv(RESULTS / "pressure_gamma0.csv"))
 
 
-def curved_geometry():
-    t = pd.read_csv(RESULTS / "curved_geometry.csv")
-    wide = t.pivot_table(index=["disk", "nx"], columns="geometry",
-                         values=["area_rel_err", "perimeter_rel_err", "poly_rel_err"]).reset_index()
-    out = pd.DataFrame({"disk": wide["disk"], "NX": wide["nx"]})
-    for value, label in (("area_rel_err", "area"), ("perimeter_rel_err", "perimeter"),
-                         ("poly_rel_err", "polynomial")):
+def curved_geometry_table(name, shape, counts):
+    t = pd.read_csv(RESULTS / name)
+    measures = [c for c in ("area_rel_err", "volume_rel_err", "perimeter_rel_err", "poly_rel_err") if c in t]
+    wide = t.pivot_table(index=[shape, "nx"], columns="geometry", values=measures).reset_index()
+    out = pd.DataFrame({shape: wide[shape], "NX": wide["nx"]})
+    labels = {"area_rel_err": "area", "volume_rel_err": "volume", "perimeter_rel_err": "perimeter",
+              "poly_rel_err": "polynomial"}
+    for value in measures:
         for geometry in ("p1", "curved"):
-            out[f"{label} {geometry}"] = wide[(value, geometry)].map(lambda v: f"{v:.2g}")
+            out[f"{labels[value]} {geometry}"] = wide[(value, geometry)].map(lambda v: f"{v:.2g}")
+    if counts:   # the curved cells: how many, and how many fell back to the P1 cut
+        curved = t[t["geometry"] == "curved"].set_index([shape, "nx"])
+        out["curved cut cells"] = [
+            f"{int(curved.loc[(b, n), 'cut_elements'])}" for b, n in zip(out[shape], out["NX"])]
+        out["fallbacks"] = [int(curved.loc[(b, n), "fallback"]) for b, n in zip(out[shape], out["NX"])]
     return markdown_table(out)
+
+
+def curved_geometry():
+    return curved_geometry_table("curved_geometry.csv", "disk", counts=False)
+
+
+def curved_geometry_3d():
+    return curved_geometry_table("curved_geometry_3d.csv", "ball", counts=True)
 
 
 def curved_convergence():
@@ -316,6 +330,7 @@ TABLES = {
     "pressure_recovery": pressure_recovery,
     "pressure_gamma0": pressure_gamma0,
     "curved_geometry": curved_geometry,
+    "curved_geometry_3d": curved_geometry_3d,
     "curved_convergence": curved_convergence,
     "curved_cost": curved_cost,
 }

@@ -20,11 +20,15 @@ PHASES = ("geometry", "assembly", "newton", "estimators", "all_steps")
 
 def geometry_check():
     """Area, perimeter and a polynomial's integral over two disks at NX = 20, 40, 80, P1 and
-    curved cells (freefem/tools/curved_geometry_check.edp): results/curved_geometry.csv."""
-    out = RESULTS_DIR / "curved_geometry.csv"
-    tool = str(TOOLS_DIR / "curved_geometry_check.edp")
-    run_command([freefem_binary(), "-nw", "-v", "0", tool, "-out", str(out)], "the curved-geometry check", cwd=REPO)
-    print(f"wrote {out}")
+    curved cells (freefem/tools/curved_geometry_check.edp): results/curved_geometry.csv;
+    volume, area and a polynomial's integral over two balls at nx = 8, 16, 32
+    (curved_geometry_check_3d.edp): results/curved_geometry_3d.csv."""
+    for tool, csv in (("curved_geometry_check.edp", "curved_geometry.csv"),
+                      ("curved_geometry_check_3d.edp", "curved_geometry_3d.csv")):
+        out = RESULTS_DIR / csv
+        run_command([freefem_binary(), "-nw", "-v", "0", str(TOOLS_DIR / tool), "-out", str(out)],
+                    f"the curved-geometry check ({tool})", cwd=REPO)
+        print(f"wrote {out}")
 
 
 def convergence():
