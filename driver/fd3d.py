@@ -215,5 +215,5 @@ def summary_lines(results):
         + (f" (recovered {contact['max_pressure_recovered']:.4g})" if "max_pressure_recovered" in contact else ""),
         f"cut elements: min ratio {cut['min_ratio_body1']:.2e} (body 1), {cut['min_ratio_body2']:.2e} (body 2); "
         f"stabilization {cut['stabilization']}: cases a/b/c = {cut['case_a']}/{cut['case_b']}/{cut['case_c']} "
-        f"(per interface triangle), sliver elements dropped {cut['dropped_body1']} + {cut['dropped_body2']}",
+        f"(per cut piece), sliver elements dropped {cut['dropped_body1']} + {cut['dropped_body2']}",
     ]
