@@ -7,19 +7,33 @@ SET ?=
 SUDO := $(shell [ "$$(id -u)" -eq 0 ] || echo sudo)
 # libopenblas0-serial: MUMPS links the system BLAS; the reference BLAS is slower
 # (the timings in docs/benchmarks.md were measured with OpenBLAS serial).
-DEBIAN_PACKAGES := freefem++ libfreefem++ gmsh libopenblas0-serial
+# libfreefem++-dev, libmumps-seq-dev, g++: to build the Newton's MUMPS plugin
+# (freefem/plugins/contact_mumps.cpp).
+DEBIAN_PACKAGES := freefem++ libfreefem++ gmsh libopenblas0-serial libfreefem++-dev libmumps-seq-dev g++
 OPENBLAS := /usr/lib/x86_64-linux-gnu/openblas-serial/libblas.so.3
 export FF_LOADPATH := /usr/lib/freefem++
 
 .PHONY: setup setup-system setup-python case test clean
 
-setup: setup-system setup-python
+PLUGIN := freefem/plugins/contact_mumps.so
+
+setup: setup-system setup-python $(PLUGIN)
+
+# The plugin is rebuilt when its source changes (ff-c++ is FreeFEM's plugin compiler),
+# in a scratch folder, then moved in place: a run that has the old one loaded keeps it.
+$(PLUGIN): freefem/plugins/contact_mumps.cpp | setup-system
+	@echo "building $@"
+	@tmp=$$(mktemp -d) && cp $< $$tmp/ && (cd $$tmp && ff-c++ contact_mumps.cpp -I/usr/include/mumps_seq \
+	    -ldmumps_seq -lmumps_common_seq -lmpiseq_seq > build.log 2>&1) \
+	  && mv $$tmp/contact_mumps.so $@ && rm -rf $$tmp \
+	  || { cat $$tmp/build.log; rm -rf $$tmp; echo "ERROR: could not build $@"; exit 1; }
 
 # FreeFEM's plugins (msh3, iovtk, gmsh, ...) live in libfreefem++, which the
 # freefem++ package does not pull in: check for a plugin file, not the binary.
 setup-system:
 	@if ! command -v FreeFem++ >/dev/null || ! command -v gmsh >/dev/null \
-	    || [ ! -f /usr/lib/freefem++/iovtk.so ] || [ ! -f $(OPENBLAS) ]; then \
+	    || [ ! -f /usr/lib/freefem++/iovtk.so ] || [ ! -f $(OPENBLAS) ] \
+	    || [ ! -f /usr/include/freefem++/ff++.hpp ] || [ ! -f /usr/include/dmumps_c.h ] || ! command -v g++ >/dev/null; then \
 	  echo "installing Debian packages: $(DEBIAN_PACKAGES)"; \
 	  $(SUDO) apt-get update -qq && \
 	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $(DEBIAN_PACKAGES) >/dev/null; \
@@ -43,7 +57,7 @@ test: setup
 	$(PYTHON) -m pytest -q tests
 
 clean:
-	rm -rf runs .pytest_cache
+	rm -rf runs .pytest_cache $(PLUGIN)
 
 # Tables and figures of the study pages in docs/ (one target per study; each ends
 # by refilling the generated tables of README.md and docs/*.md: make readme).
@@ -98,7 +112,7 @@ hard-study: setup
 # bench_first_active_set.csv).
 .PHONY: bench
 bench: setup
-	$(PYTHON) -m driver study bench-newton bench bench-overhead
+	$(PYTHON) -m driver study bench-newton bench bench-overhead bench-solver
 	$(PYTHON) -m driver readme
 
 # Fictitious-domain ball on slab (3D): P1 (theta = 1, 0, -1) and P2 ladders against a

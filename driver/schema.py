@@ -195,6 +195,11 @@ def two_body_solver_schema(floating_body, contact_points):
                                  doc="Newton steps of the secant predictor on the active measure"),
         "refactor_points": Field("int", flag="refactor_points", default=12, check=at_least(0),
                                  doc="re-use the factorization (GMRES) when fewer points changed"),
+        "refactor_auto": Field("bool", flag="refactor_auto", default=True,
+                               doc="also re-use it when fewer points changed than the solves one "
+                                   "factorization costs (from MUMPS's operation count)"),
+        "reuse_analysis": Field("bool", flag="reuse_analysis", default=True,
+                                doc="keep MUMPS's ordering and analysis while the matrix pattern stays"),
         "allow_unbalanced": Field("bool", flag="allow_unbalanced", default=False,
                                   doc=f"keep a run whose pins or mass term carry more than 1e-6 of the "
                                       f"{floating_body}'s load (flagged in results.json 'balance'); refused "
