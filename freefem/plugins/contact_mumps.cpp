@@ -27,7 +27,7 @@
 //       s (resized to 11) = analyses, numeric factorizations, solves, entries in the
 //       factors (INFOG(29)), operations of the last elimination (RINFOG(3)), the
 //       last factorization's peak memory in MB (INFOG(22)), the size n of the last
-//       matrix, INFOG(1) of the last call, wall seconds spent in MUMPS's analyses,
+//       matrix, INFOG(1) of the last call, CPU seconds spent in MUMPS's analyses,
 //       numeric factorizations and solves (counts and seconds: process totals).
 //   int contactMumpsRelease()
 //       frees the instance (the next factorization analyses again).
@@ -40,7 +40,7 @@
 // Build: freefem/plugins/build.sh (make setup runs it).
 
 #include <iostream>
-#include <chrono>
+#include <ctime>
 #include <vector>
 #include "ff++.hpp"
 #include "mumps_seq/mpi.h"
@@ -59,19 +59,19 @@ struct ContactMumps {
     std::vector<int> rowsNext, colsNext;   // the pattern being loaded
     std::vector<double> values;
     long analyses = 0, factorizations = 0, solves = 0, lastInfo = 0;
-    double analysisSeconds = 0, factorSeconds = 0, solveSeconds = 0;   // wall, MUMPS calls only
+    double analysisSeconds = 0, factorSeconds = 0, solveSeconds = 0;   // CPU, MUMPS calls only
 
     int &icntl(int i) { return id.icntl[i - 1]; }
     int infog(int i) const { return id.infog[i - 1]; }
 
-    // One MUMPS job; returns its wall seconds.
+    // One MUMPS job; returns its CPU seconds (the process's: MUMPS runs on this thread).
     double call(int job) {
         quiet();
         id.job = job;
-        const auto t0 = std::chrono::steady_clock::now();
+        const std::clock_t t0 = std::clock();
         dmumps_c(&id);
         lastInfo = infog(1);
-        return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+        return double(std::clock() - t0) / CLOCKS_PER_SEC;
     }
 
     void start() {
