@@ -148,6 +148,21 @@ def bench_overhead():
             + f"\n\nMachine: {t.machine.iloc[0]}; load average (1 min) {t.load_1min.iloc[0]} over the runs.")
 
 
+def bench_solver():
+    from driver.studies.bench import solver_table
+
+    t = pd.read_csv(RESULTS / "bench_solver.csv")
+    return (markdown_table(solver_table(t), digits=3)
+            + f"\n\nMachine: {t.machine.iloc[0]}; load average (1 min) {t.load_1min.iloc[0]} over the runs.")
+
+
+def bench_solver_budget():
+    t = pd.read_csv(RESULTS / "bench_solver_budget.csv")
+    return markdown_table(t[["case", "factor_operations", "factor_entries", "sqrt_operations_per_entry",
+                             "factorization_s", "solve_s", "time_ratio", "time_ratio_over_sqrt",
+                             "refactor_budget"]], digits=3)
+
+
 def bench_mumps():
     from driver.studies.bench import mumps_summary
 
@@ -310,6 +325,8 @@ TABLES = {
     "bench_targets": bench_targets,
     "bench_newton": bench_newton,
     "bench_overhead": bench_overhead,
+    "bench_solver": bench_solver,
+    "bench_solver_budget": bench_solver_budget,
     "bench_mumps": bench_mumps,
     "bench_first_active_set": bench_first_active_set,
     "fd_aposteriori": fd_aposteriori,

@@ -33,6 +33,7 @@ REGISTRY = {
     "bench": ("bench", "bench"),
     "bench-newton": ("bench", "newton_grid"),
     "bench-overhead": ("bench", "overhead"),
+    "bench-solver": ("bench", "solver"),
 }
 
 

@@ -426,3 +426,158 @@ def overhead_table(summary):
                **{f"cpu_{p}": p.replace("newton_", "") for p in OVERHEAD_PHASES}}
     table = summary[[c for c in columns if c in summary]].rename(columns=columns)
     return table
+
+
+# ---- the Newton's linear solver: the previous version against the current one (study bench-solver) ----
+
+SOLVER_REPEATS = int(os.environ.get("BENCH_SOLVER_REPEATS", "3"))
+# The last version whose Newton factorized through FreeFEM's MUMPS_seq (a new
+# analysis per factorization, K = A0 + Kc summed by FreeFEM, GMRES for at most
+# refactor_points changed points); checked out into a scratch worktree and timed
+# in turn with the current tree.
+SOLVER_BASELINE = "f8c62dd"
+SOLVER_CASES = {   # label -> direct FreeFEM command after the binary (embedded default scenes)
+    "2D disk on slab, P2, NX = 80 (default scene)": ["freefem/fd_contact_2d.edp"],
+    "3D ball on slab, P2, nx = 12": ["freefem/fd_contact_3d.edp", "-Ddegree=2", "-nx", "12"],
+    "3D ball on slab, P2, nx = 16": ["freefem/fd_contact_3d.edp", "-Ddegree=2", "-nx", "16"],
+}
+SOLVER_VARIANTS = {   # label -> (tree: "baseline" or "current", extra flags)
+    f"previous version ({SOLVER_BASELINE})": ("baseline", []),
+    "current, analysis every time, refactor_points only": ("current", ["-reuse_analysis", "0",
+                                                                        "-refactor_auto", "0"]),
+    "current": ("current", []),
+}
+SOLVER_QUIET = ["-estimators", "0", "-vtu", "0", "-csv", "0"]
+
+
+def timed_solve(tree, command, folder):
+    """Wall seconds, CPU seconds and peak resident memory (MB) of one FreeFEM process
+    run from the repository tree `tree`."""
+    start = time.perf_counter()
+    proc = subprocess.Popen([freefem_binary(), "-nw", "-v", "0", *command, *SOLVER_QUIET, "-outdir", str(folder)],
+                            cwd=tree, env=freefem_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True, errors="replace")
+    err = proc.stderr.read()
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - start
+    proc.stderr.close()
+    if os.waitstatus_to_exitcode(status) != 0:
+        raise DriverError(f"bench-solver: {' '.join(command)} in {tree} failed: {err.strip()[-500:]}")
+    return wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024
+
+
+def baseline_tree(scratch):
+    """A detached worktree of SOLVER_BASELINE in `scratch` (removed by the caller)."""
+    proc = subprocess.run(["git", "worktree", "add", "--detach", str(scratch), SOLVER_BASELINE], cwd=REPO,
+                          capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise DriverError(f"bench-solver: cannot check out {SOLVER_BASELINE}: {proc.stderr.strip()[-300:]}")
+    return scratch
+
+
+def solver_runs():
+    """Every case under every variant, in turn within each repeat."""
+    rows = []
+    total = SOLVER_REPEATS * len(SOLVER_CASES) * len(SOLVER_VARIANTS)
+    with tempfile.TemporaryDirectory(prefix="bench-solver-") as tmp:
+        trees = dict(baseline=baseline_tree(Path(tmp) / "baseline"), current=REPO)
+        try:
+            for repeat in range(SOLVER_REPEATS):
+                for case, command in SOLVER_CASES.items():
+                    for variant, (tree, flags) in SOLVER_VARIANTS.items():
+                        progress(len(rows) + 1, total, f"{case}, {variant}")
+                        folder = Path(tmp) / f"run{len(rows)}"
+                        load = load_average()
+                        wall, cpu, rss = timed_solve(trees[tree], [*command, *flags], folder)
+                        results = parse_json_file(folder / "results.json")
+                        newton, timings = results["newton"], results["timings_cpu_s"]
+                        rows.append(dict(
+                            case=case, variant=variant, repeat=repeat, dofs=results["dofs"],
+                            newton_iterations=newton["iterations"], factorizations=newton["factorizations"],
+                            analyses=newton.get("analyses", newton["factorizations"]),
+                            gmres_iterations=newton["gmres_iterations"],
+                            refactor_budget=newton.get("refactor_budget"),
+                            factor_operations=newton.get("factor_operations"),
+                            factor_entries=newton.get("factor_entries"), mumps_solves=newton.get("mumps_solves"),
+                            mumps_factorization_s=timings.get("newton_mumps_factorization"),
+                            mumps_solve_s=timings.get("newton_mumps_solve"), wall_s=wall, cpu_s=cpu, peak_rss_mb=rss,
+                            cpu_newton=timings["newton"], cpu_newton_factor_solve=timings["newton_factor_solve"],
+                            cpu_all_steps=timings["all_steps"], centre_uz=results["probes"]["centre"][-1],
+                            load_1min_before=load))
+        finally:
+            subprocess.run(["git", "worktree", "remove", "--force", str(trees["baseline"])], cwd=REPO,
+                           capture_output=True)
+    return pd.DataFrame(rows)
+
+
+def solver_summary(runs):
+    """Medians per case and variant, ratios to the previous version, and how far the
+    variants' answers differ (round-off)."""
+    rows = []
+    baseline = next(iter(SOLVER_VARIANTS))
+    for case, group in runs.groupby("case", sort=False):
+        centres = group.centre_uz
+        spread = float((centres - centres.iloc[0]).abs().max() / abs(centres.iloc[0]))
+        if spread > 1e-9:
+            raise DriverError(f"bench-solver: {case}: the variants' answers differ by {spread:.2e} (relative)")
+        medians = {}
+        for variant, runs_v in group.groupby("variant", sort=False):
+            counts = runs_v[["newton_iterations", "factorizations", "analyses", "gmres_iterations"]]
+            if counts.nunique().max() > 1:
+                raise DriverError(f"bench-solver: {case}, {variant}: repeats took different Newton paths")
+            medians[variant] = dict(
+                case=case, variant=variant, runs=len(runs_v), dofs=int(runs_v.dofs.iloc[0]),
+                **counts.iloc[0].to_dict(), refactor_budget=runs_v.refactor_budget.iloc[0],
+                wall_s=runs_v.wall_s.median(), cpu_newton=runs_v.cpu_newton.median(),
+                cpu_all_steps=runs_v.cpu_all_steps.median(), peak_rss_mb=runs_v.peak_rss_mb.median(),
+                centre_rel_diff=spread)
+        for row in medians.values():
+            for what in ("wall_s", "cpu_newton", "peak_rss_mb"):
+                row[f"{what}_ratio"] = row[what] / medians[baseline][what]
+            rows.append(row)
+    summary = pd.DataFrame(rows)
+    summary["load_1min"] = f"{runs.load_1min_before.min():.2f} to {runs.load_1min_before.max():.2f}"
+    summary["machine"] = machine()
+    return summary
+
+
+def solver_budget(runs):
+    """The GMRES budget's model against MUMPS's own timings (current tree): measured
+    factorization/solve time ratio beside sqrt(operations/entries)."""
+    current = runs[runs.variant == "current"]
+    rows = []
+    for case, group in current.groupby("case", sort=False):
+        per_factor = (group.mumps_factorization_s / group.factorizations).median()
+        per_solve = (group.mumps_solve_s / group.mumps_solves).median()
+        root = float(np.sqrt(group.factor_operations.iloc[0] / group.factor_entries.iloc[0]))
+        rows.append(dict(case=case, factor_operations=group.factor_operations.iloc[0],
+                         factor_entries=group.factor_entries.iloc[0], sqrt_operations_per_entry=root,
+                         factorization_s=per_factor, solve_s=per_solve, time_ratio=per_factor / per_solve,
+                         time_ratio_over_sqrt=per_factor / per_solve / root,
+                         refactor_budget=group.refactor_budget.iloc[0]))
+    return pd.DataFrame(rows)
+
+
+def solver_table(summary):
+    """The docs table of bench_solver.csv."""
+    columns = {"case": "case", "variant": "Newton's linear solver", "dofs": "DOFs", "newton_iterations": "Newton",
+               "factorizations": "factorizations", "analyses": "analyses", "gmres_iterations": "GMRES",
+               "wall_s": "wall s", "wall_s_ratio": "wall / previous", "cpu_newton": "Newton CPU s",
+               "cpu_newton_ratio": "Newton / previous", "peak_rss_mb": "peak MB"}
+    return summary[list(columns)].rename(columns=columns)
+
+
+def solver():
+    """make bench: the Newton's linear solves of the previous version (FreeFEM's
+    MUMPS_seq) against the current plugin, with and without its two policies, on the
+    2D default scene and two 3D P2 meshes; and the GMRES budget's model."""
+    RESULTS_DIR.mkdir(exist_ok=True)
+    runs = solver_runs()
+    runs.to_csv(RESULTS_DIR / "bench_solver_runs.csv", index=False)
+    summary = solver_summary(runs)
+    summary.to_csv(RESULTS_DIR / "bench_solver.csv", index=False)
+    budget = solver_budget(runs)
+    budget.to_csv(RESULTS_DIR / "bench_solver_budget.csv", index=False)
+    print(markdown_table(solver_table(summary), digits=3))
+    print(markdown_table(budget, digits=3))
+    return summary

@@ -37,7 +37,8 @@
 // one thread per core unless SCOTCH_PTHREAD_NUMBER says otherwise: the scripts set
 // it to 1 (freefem/lib/core/sparse_solver.idp) for reproducible orderings.
 //
-// Build: freefem/plugins/build.sh (make setup runs it).
+// Build: make setup (the Makefile's rule for freefem/plugins/contact_mumps.so,
+// FreeFEM's ff-c++ against Debian's libmumps-seq-dev).
 
 #include <iostream>
 #include <ctime>
@@ -63,6 +64,8 @@ struct ContactMumps {
 
     int &icntl(int i) { return id.icntl[i - 1]; }
     int infog(int i) const { return id.infog[i - 1]; }
+    // MUMPS reports entry counts beyond the int range as minus millions.
+    double count(int i) const { return infog(i) >= 0 ? infog(i) : -1e6 * infog(i); }
 
     // One MUMPS job; returns its CPU seconds (the process's: MUMPS runs on this thread).
     double call(int job) {
@@ -199,7 +202,7 @@ long contactMumpsStats(KN<double> *const &s) {
     (*s)[0] = m.analyses;
     (*s)[1] = m.factorizations;
     (*s)[2] = m.solves;
-    (*s)[3] = m.started ? (double)m.infog(29) : 0.;
+    (*s)[3] = m.started ? m.count(29) : 0.;
     (*s)[4] = m.started ? m.id.rinfog[2] : 0.;
     (*s)[5] = m.started ? (double)m.infog(22) : 0.;
     (*s)[6] = m.started ? (double)m.id.n : 0.;
