@@ -140,6 +140,14 @@ fd3d-study: setup
 	$(PYTHON) -m driver study fd3d-convergence ball-on-slab-figure fd3d-adaptive
 	$(PYTHON) -m driver readme
 
+# The 3D P2 ladder (theta = -1, nx = 8, 12, 16, 20) on the curved cut geometry
+# (docs/curved-geometry.md) against fd3d-study's graded reference solved on the curved
+# geometry (computed once into runs/reference/): results/fd3d_curved_*.csv.
+.PHONY: fd3d-curved-study
+fd3d-curved-study: setup
+	$(PYTHON) -m driver study fd3d-curved-convergence
+	$(PYTHON) -m driver readme
+
 # Parameter sweeps on Dask (docs/sweeps.md): one FreeFEM run per point,
 # one row per point in results/sweep_NAME.csv, resumable (runs/sweeps/NAME/rows/).
 # make sweep [SWEEP=cases/sweeps/NAME.toml] [WORKERS=2] [SCHEDULER=tcp://HOST:8786]

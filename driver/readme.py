@@ -235,6 +235,35 @@ def fd3d_cost():
     return markdown_table(pd.read_csv(RESULTS / "fd3d_cost.csv"), digits=3)
 
 
+def fd3d_curved_rates():
+    """P2, theta = -1: the curved geometry's rates (its ladder against the curved
+    reference) beside the P1 geometry's (against the P1 reference, fd3d_rates.csv)."""
+    curved = pd.read_csv(RESULTS / "fd3d_curved_rates.csv")
+    p1 = pd.read_csv(RESULTS / "fd3d_rates.csv")
+    rows = []
+    for norm, body, name in (("L2", 1, "ball"), ("L2", 2, "slab"), ("H1", 1, "ball"), ("H1", 2, "slab")):
+        row = {"P2, theta = -1: rate (nx used)": f"{norm} body {body} ({name})"}
+        for label, t in (("curved geometry", curved), ("P1 geometry", p1)):
+            pick = t[(t.degree == 2) & (t.theta == -1) & (t.body == body) & (t.norm == norm)]
+            row[label] = f"{pick.rate.iloc[0]:.2f} ({pick.nx_used.iloc[0]})" if len(pick) else "-"
+        rows.append(row)
+    return markdown_table(pd.DataFrame(rows))
+
+
+def fd3d_curved_convergence():
+    """The curved ladder and reference, then the P1 geometry's P2 theta = -1 ladder and
+    reference (fd3d_convergence.csv): errors against each one's own reference, costs."""
+    curved = pd.read_csv(RESULTS / "fd3d_curved_convergence.csv")
+    p1 = pd.read_csv(RESULTS / "fd3d_convergence.csv")
+    p1 = p1[(p1.degree == 2) & (p1.theta == -1) & (p1.ladder | (p1.status == "reference"))].copy()
+    p1.insert(0, "geometry", "p1")
+    t = pd.concat([curved, p1], ignore_index=True)
+    t["nx"] = [f"{int(n)} (reference)" if s == "reference" else str(int(n)) for n, s in zip(t.nx, t.status)]
+    columns = ["geometry", "nx", "dofs", "l2_body1", "l2_body2", "h1_body1", "h1_body2", "newton_iterations",
+               "force_balance_error", "wall_s", "peak_rss_mb"]
+    return markdown_table(t[columns], digits=3)
+
+
 def fd3d_adaptive():
     from driver.studies.common import loglog_slope
 
@@ -344,6 +373,8 @@ TABLES = {
     "fd3d_convergence": fd3d_convergence,
     "fd3d_cost": fd3d_cost,
     "fd3d_adaptive": fd3d_adaptive,
+    "fd3d_curved_rates": fd3d_curved_rates,
+    "fd3d_curved_convergence": fd3d_curved_convergence,
     "pressure_recovery": pressure_recovery,
     "pressure_gamma0": pressure_gamma0,
     "curved_geometry": curved_geometry,

@@ -23,6 +23,7 @@ REGISTRY = {
     "pressure-gamma0": ("pressure", "gamma0_tradeoff"),
     "fd-aposteriori": ("fd2d", "aposteriori"),
     "fd3d-convergence": ("fd3d", "convergence"),
+    "fd3d-curved-convergence": ("fd3d", "curved_convergence"),
     "ball-on-slab-figure": ("fd3d", "vonmises_figure"),
     "fd3d-adaptive": ("fd3d_estimators", "adaptive_study"),
     "hard-cases": ("hard_cases", "hard_cases"),

@@ -48,6 +48,10 @@ def ladder(env, default):
 
 P1_LADDER = ladder("FD3D_P1_LADDER", (8, 12, 16, 20, 24, 32, 40, 48))
 P2_LADDER = ladder("FD3D_P2_LADDER", (8, 12, 16, 20))
+# The curved-geometry study (method.geometry = "curved", fd3d/curved.idp): P2,
+# theta = -1, the aligned nx only, against the same graded reference solved on the
+# curved geometry.
+CURVED_LADDER = ladder("FD3D_CURVED_LADDER", (8, 12, 16, 20))
 OFFSET_NX = ladder("FD3D_OFFSET_NX", (6, 10, 15, 30))   # P1 and P2 (up to nx 15), other cuts
 
 
@@ -62,28 +66,35 @@ REFERENCE_SETTINGS = ["method.degree=2", "method.theta=-1", "output.vtu=false", 
                       "output.estimators=false", "solver.refactor_points=300"]
 
 
-def reference_label():
-    if REFERENCE_GRADE_H <= 0:
-        return f"P2 nx = {REFERENCE_NX}"
-    return (f"P2 nx = {REFERENCE_NX} graded to h = 1/{1 / REFERENCE_GRADE_H:.0f} within "
-            f"{REFERENCE_GRADE_RADIUS:g} of the contact point (slope {REFERENCE_GRADE_SLOPE:g})")
+def reference_label(geometry="p1"):
+    label = f"P2 nx = {REFERENCE_NX}"
+    if REFERENCE_GRADE_H > 0:
+        label += (f" graded to h = 1/{1 / REFERENCE_GRADE_H:.0f} within "
+                  f"{REFERENCE_GRADE_RADIUS:g} of the contact point (slope {REFERENCE_GRADE_SLOPE:g})")
+    return label + (", curved geometry" if geometry == "curved" else "")
 
 
-def reference():
-    """The P2 reference (see REFERENCE_*); the centre cut CSV is kept for the figure."""
+def reference(geometry="p1"):
+    """The P2 reference (see REFERENCE_*) on the cut geometry `geometry` (the P1 one
+    keeps its folder name); the centre cut CSV is kept for the figure."""
     name = f"ball_on_slab_p2_nx{REFERENCE_NX}"
-    settings = [f"mesh.nx={REFERENCE_NX}", *REFERENCE_SETTINGS]
+    settings = [f"mesh.nx={REFERENCE_NX}", *REFERENCE_SETTINGS, f"method.geometry={geometry}"]
     if REFERENCE_GRADE_H > 0:
         name += f"_grade{1 / REFERENCE_GRADE_H:.0f}_r{REFERENCE_GRADE_RADIUS:g}_s{REFERENCE_GRADE_SLOPE:g}"
         settings += [f"mesh.grade_h={REFERENCE_GRADE_H!r}", f"mesh.grade_radius={REFERENCE_GRADE_RADIUS!r}",
                      f"mesh.grade_slope={REFERENCE_GRADE_SLOPE!r}"]
-    folder = REPO / "runs" / "reference" / name
+    folder = REPO / "runs" / "reference" / (name + geometry_suffix(geometry))
 
     def compute():
         scene, module = load_scene(BALL, settings)
         run_scene(scene, module, out_dir=folder, replace=True)
 
-    return cached_reference(folder, f"the ball-on-slab reference ({reference_label()})", compute)
+    return cached_reference(folder, f"the ball-on-slab reference ({reference_label(geometry)})", compute)
+
+
+def geometry_suffix(geometry):
+    """Folder names: the P1 geometry (the 3D default) keeps the names it had before the option."""
+    return "" if geometry == "p1" else f"_{geometry}"
 
 
 def errors_against(ref, run_folder):
@@ -98,18 +109,18 @@ def cost_columns(results):
                 cpu_newton_contact_s=t.get("newton_contact_assembly"), cpu_output_s=t.get("output"))
 
 
-def study_folder(degree, theta, nx):
-    return REPO / "runs" / "fd3d_study" / f"p{degree}_theta{theta:g}_nx{nx}"
+def study_folder(degree, theta, nx, geometry="p1"):
+    return REPO / "runs" / "fd3d_study" / f"p{degree}_theta{theta:g}_nx{nx}{geometry_suffix(geometry)}"
 
 
-def solve(degree, theta, nx):
+def solve(degree, theta, nx, geometry="p1"):
     """One saved run of the ladder in runs/fd3d_study/ (kept: 3D runs are expensive;
     delete the folder to recompute it). None if it ran, else a failed-run row."""
-    folder = study_folder(degree, theta, nx)
+    folder = study_folder(degree, theta, nx, geometry)
     if (folder / "results.json").is_file():
         return None
     overrides = [f"method.degree={degree}", f"method.theta={theta}", f"mesh.nx={nx}",
-                 "output.save_solution=true", *QUIET]
+                 f"method.geometry={geometry}", "output.save_solution=true", *QUIET]
     scene, module = load_scene(BALL, overrides)
     try:
         run_scene(scene, module, out_dir=folder, replace=True)
@@ -121,12 +132,12 @@ def solve(degree, theta, nx):
     return None
 
 
-def run_with_errors(ref, degree, theta, nx):
+def run_with_errors(ref, degree, theta, nx, geometry="p1"):
     """One saved run and its errors against the reference (errors.json kept with the
     run while it names this reference): a table row."""
     labels = dict(degree=degree, theta=theta)
-    folder = study_folder(degree, theta, nx)
-    failed = solve(degree, theta, nx)
+    folder = study_folder(degree, theta, nx, geometry)
+    failed = solve(degree, theta, nx, geometry)
     if failed:
         return failed
     err = None
@@ -199,6 +210,46 @@ def convergence():
     plot_convergence(table, costs)
     check_bars(table, rates)
     return table
+
+
+def curved_convergence():
+    """The P2 ladder (theta = -1, CURVED_LADDER) on the curved cut geometry against the
+    graded reference solved on it (fd_error_3d.edp integrates on the reference's curved
+    cut cells): results/fd3d_curved_convergence.csv (the columns of
+    fd3d_convergence.csv plus geometry, the ball's volume error and its centre u_z
+    error against the reference) and results/fd3d_curved_rates.csv (those of
+    fd3d_rates.csv plus geometry)."""
+    geometry = "curved"
+    ref = reference(geometry)
+    ref_results = parse_json_file(ref / "results.json")
+    centre_ref = ref_results["probes"]["centre"][2]
+    ladder_nx = [nx for nx in CURVED_LADDER if aligned(nx)]
+    rows = []
+    for i, nx in enumerate(ladder_nx, 1):
+        progress(i, len(ladder_nx), f"P2 theta=-1 nx={nx}, geometry {geometry}")
+        row = dict(run_with_errors(ref, 2, -1, nx, geometry), ladder=True)
+        if row["status"] == "converged":
+            row.update(ball_geometry(parse_json_file(study_folder(2, -1, nx, geometry) / "results.json")))
+        rows.append(row)
+    rows.append(dict(reference_row(ref), ladder=False, **ball_geometry(ref_results)))
+    table = pd.DataFrame(rows)
+    table.insert(0, "geometry", geometry)
+    table["centre_uz_rel_err"] = (table.centre_uz - centre_ref).abs() / abs(centre_ref)
+    RESULTS_DIR.mkdir(exist_ok=True)
+    table.to_csv(RESULTS_DIR / "fd3d_curved_convergence.csv", index=False)
+    rates = rates_of(table[(table.status == "converged") & table.ladder], ["geometry", "degree", "theta"])
+    rates.to_csv(RESULTS_DIR / "fd3d_curved_rates.csv", index=False)
+    print(markdown_table(rates, digits=3))
+    failed = table[~table.status.isin(["converged", "reference"])]
+    if len(failed):
+        print(f"warning: {len(failed)} runs did not converge:\n" + failed[["nx", "message"]].to_string())
+    return table
+
+
+def ball_geometry(results):
+    """The discrete ball's volume (the solver's, on its cut geometry) and its relative error."""
+    v = results["volumes"]
+    return dict(volume_body1=v["body1"], volume_rel_err_body1=(v["body1"] - v["body1_exact"]) / v["body1_exact"])
 
 
 def check_bars(table, rates):
