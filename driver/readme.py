@@ -252,15 +252,18 @@ def fd3d_curved_rates():
 
 def fd3d_curved_convergence():
     """The curved ladder and reference, then the P1 geometry's P2 theta = -1 ladder and
-    reference (fd3d_convergence.csv): errors against each one's own reference, costs."""
+    reference (fd3d_convergence.csv): errors and the centre u_z error against each one's
+    own reference, the ball's volume error (curved only), costs."""
     curved = pd.read_csv(RESULTS / "fd3d_curved_convergence.csv")
     p1 = pd.read_csv(RESULTS / "fd3d_convergence.csv")
     p1 = p1[(p1.degree == 2) & (p1.theta == -1) & (p1.ladder | (p1.status == "reference"))].copy()
     p1.insert(0, "geometry", "p1")
+    centre_ref = p1.loc[p1.status == "reference", "centre_uz"].iloc[0]
+    p1["centre_uz_rel_err"] = (p1.centre_uz - centre_ref).abs() / abs(centre_ref)
     t = pd.concat([curved, p1], ignore_index=True)
     t["nx"] = [f"{int(n)} (reference)" if s == "reference" else str(int(n)) for n, s in zip(t.nx, t.status)]
-    columns = ["geometry", "nx", "dofs", "l2_body1", "l2_body2", "h1_body1", "h1_body2", "newton_iterations",
-               "force_balance_error", "wall_s", "peak_rss_mb"]
+    columns = ["geometry", "nx", "dofs", "l2_body1", "l2_body2", "h1_body1", "h1_body2", "centre_uz_rel_err",
+               "volume_rel_err_body1", "newton_iterations", "force_balance_error", "wall_s", "peak_rss_mb"]
     return markdown_table(t[columns], digits=3)
 
 
