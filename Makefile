@@ -109,10 +109,13 @@ hard-study: setup
 
 # bench-overhead: make case's whole process against the FreeFEM run alone (medians),
 # MUMPS's phases and the first active set (results/bench_overhead*.csv, bench_mumps.csv,
-# bench_first_active_set.csv).
+# bench_first_active_set.csv). bench-solver and bench-3d time the previous version
+# (a scratch git worktree) beside the current tree: the Newton's linear solver, and
+# the 3D runs' cost by phase with its growth against DOFs (results/bench_3d*.csv), and the
+# 3D error tool against the graded reference (results/bench_error_tool*.csv).
 .PHONY: bench
 bench: setup
-	$(PYTHON) -m driver study bench-newton bench bench-overhead bench-solver
+	$(PYTHON) -m driver study bench-newton bench bench-overhead bench-solver bench-3d bench-error-tool
 	$(PYTHON) -m driver readme
 
 # Fictitious-domain ball on slab (3D): P1 (theta = 1, 0, -1) and P2 ladders against a

@@ -163,6 +163,25 @@ def bench_solver_budget():
                              "refactor_budget"]], digits=3)
 
 
+def bench_3d():
+    from driver.studies.bench import bench3d_table
+
+    t = pd.read_csv(RESULTS / "bench_3d.csv")
+    return (markdown_table(bench3d_table(t), digits=3)
+            + f"\n\nMachine: {t.machine.iloc[0]}; load average (1 min) {t.load_1min.iloc[0]} over the runs.")
+
+
+def bench_3d_scaling():
+    return markdown_table(pd.read_csv(RESULTS / "bench_3d_scaling.csv"), digits=3)
+
+
+def bench_error_tool():
+    t = pd.read_csv(RESULTS / "bench_error_tool.csv")
+    return (markdown_table(t[["version", "nx", "runs", "wall_s", "wall_s_ratio", "cpu_s", "peak_rss_mb", "errors_rel_diff",
+                              "l2_rel_body1", "h1_rel_body1", "l2_rel_body2", "h1_rel_body2"]], digits=3)
+            + f"\n\nMachine: {t.machine.iloc[0]}; load average (1 min) {t.load_1min.iloc[0]} over the runs.")
+
+
 def bench_mumps():
     from driver.studies.bench import mumps_summary
 
@@ -359,6 +378,9 @@ TABLES = {
     "bench_overhead": bench_overhead,
     "bench_solver": bench_solver,
     "bench_solver_budget": bench_solver_budget,
+    "bench_3d": bench_3d,
+    "bench_3d_scaling": bench_3d_scaling,
+    "bench_error_tool": bench_error_tool,
     "bench_mumps": bench_mumps,
     "bench_first_active_set": bench_first_active_set,
     "fd_aposteriori": fd_aposteriori,

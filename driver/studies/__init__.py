@@ -35,6 +35,8 @@ REGISTRY = {
     "bench-newton": ("bench", "newton_grid"),
     "bench-overhead": ("bench", "overhead"),
     "bench-solver": ("bench", "solver"),
+    "bench-3d": ("bench", "bench3d"),
+    "bench-error-tool": ("bench", "error_tool_bench"),
 }
 
 

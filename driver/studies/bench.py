@@ -10,14 +10,20 @@ Three tables, all from runs made by this module:
 - results/bench_overhead*.csv, bench_mumps.csv, bench_first_active_set.csv (study
   bench-overhead): what a whole `python -m driver run` of the default scene costs
   beside the FreeFEM run alone, where FreeFEM's solver time goes, and how the first
-  active set drives the Newton steps.
+  active set drives the Newton steps;
+- results/bench_solver*.csv (study bench-solver) and results/bench_3d*.csv (study
+  bench-3d): the previous version, checked out into a scratch worktree, timed beside
+  the current tree: the Newton's linear solver, and the 3D runs' cost by phase with
+  its growth against DOFs.
 Wall times on a shared machine are noisy: the target run is repeated and its
 median reported together with the load average at the time.
 """
 
 import os
 import platform
+import contextlib
 import re
+import shutil
 import statistics
 import subprocess
 import sys
@@ -450,11 +456,17 @@ SOLVER_VARIANTS = {   # label -> (tree: "baseline" or "current", extra flags)
 SOLVER_QUIET = ["-estimators", "0", "-vtu", "0", "-csv", "0"]
 
 
-def timed_solve(tree, command, folder):
+def timed_solve(tree, command, folder, quiet=SOLVER_QUIET):
+    """Wall seconds, CPU seconds and peak resident memory (MB) of one solve run from
+    the repository tree `tree` into `folder`."""
+    return timed_freefem(tree, [*command, *quiet, "-outdir", str(folder)])
+
+
+def timed_freefem(tree, command):
     """Wall seconds, CPU seconds and peak resident memory (MB) of one FreeFEM process
     run from the repository tree `tree`."""
     start = time.perf_counter()
-    proc = subprocess.Popen([freefem_binary(), "-nw", "-v", "0", *command, *SOLVER_QUIET, "-outdir", str(folder)],
+    proc = subprocess.Popen([freefem_binary(), "-nw", "-v", "0", *command],
                             cwd=tree, env=freefem_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             text=True, errors="replace")
     err = proc.stderr.read()
@@ -462,51 +474,54 @@ def timed_solve(tree, command, folder):
     wall = time.perf_counter() - start
     proc.stderr.close()
     if os.waitstatus_to_exitcode(status) != 0:
-        raise DriverError(f"bench-solver: {' '.join(command)} in {tree} failed: {err.strip()[-500:]}")
+        raise DriverError(f"bench: {' '.join(command)} in {tree} failed: {err.strip()[-500:]}")
     return wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024
 
 
-def baseline_tree(scratch):
-    """A detached worktree of SOLVER_BASELINE in `scratch` (removed by the caller)."""
-    proc = subprocess.run(["git", "worktree", "add", "--detach", str(scratch), SOLVER_BASELINE], cwd=REPO,
-                          capture_output=True, text=True)
-    if proc.returncode != 0:
-        raise DriverError(f"bench-solver: cannot check out {SOLVER_BASELINE}: {proc.stderr.strip()[-300:]}")
-    return scratch
+@contextlib.contextmanager
+def versions_to_time(prefix):
+    """A scratch folder and the two trees to time: SOLVER_BASELINE checked out
+    (detached) into the scratch folder, and the current tree; the checkout is
+    removed afterwards whatever happens."""
+    with tempfile.TemporaryDirectory(prefix=prefix) as tmp:
+        scratch = Path(tmp) / "baseline"
+        proc = subprocess.run(["git", "worktree", "add", "--detach", str(scratch), SOLVER_BASELINE], cwd=REPO,
+                              capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise DriverError(f"bench: cannot check out {SOLVER_BASELINE}: {proc.stderr.strip()[-300:]}")
+        try:
+            yield Path(tmp), dict(baseline=scratch, current=REPO)
+        finally:
+            subprocess.run(["git", "worktree", "remove", "--force", str(scratch)], cwd=REPO, capture_output=True)
 
 
 def solver_runs():
     """Every case under every variant, in turn within each repeat."""
     rows = []
     total = SOLVER_REPEATS * len(SOLVER_CASES) * len(SOLVER_VARIANTS)
-    with tempfile.TemporaryDirectory(prefix="bench-solver-") as tmp:
-        trees = dict(baseline=baseline_tree(Path(tmp) / "baseline"), current=REPO)
-        try:
-            for repeat in range(SOLVER_REPEATS):
-                for case, command in SOLVER_CASES.items():
-                    for variant, (tree, flags) in SOLVER_VARIANTS.items():
-                        progress(len(rows) + 1, total, f"{case}, {variant}")
-                        folder = Path(tmp) / f"run{len(rows)}"
-                        load = load_average()
-                        wall, cpu, rss = timed_solve(trees[tree], [*command, *flags], folder)
-                        results = parse_json_file(folder / "results.json")
-                        newton, timings = results["newton"], results["timings_cpu_s"]
-                        rows.append(dict(
-                            case=case, variant=variant, repeat=repeat, dofs=results["dofs"],
-                            newton_iterations=newton["iterations"], factorizations=newton["factorizations"],
-                            analyses=newton.get("analyses", newton["factorizations"]),
-                            gmres_iterations=newton["gmres_iterations"],
-                            refactor_budget=newton.get("refactor_budget"),
-                            factor_operations=newton.get("factor_operations"),
-                            factor_entries=newton.get("factor_entries"), mumps_solves=newton.get("mumps_solves"),
-                            mumps_factorization_s=timings.get("newton_mumps_factorization"),
-                            mumps_solve_s=timings.get("newton_mumps_solve"), wall_s=wall, cpu_s=cpu, peak_rss_mb=rss,
-                            cpu_newton=timings["newton"], cpu_newton_factor_solve=timings["newton_factor_solve"],
-                            cpu_all_steps=timings["all_steps"], centre_uz=results["probes"]["centre"][-1],
-                            load_1min_before=load))
-        finally:
-            subprocess.run(["git", "worktree", "remove", "--force", str(trees["baseline"])], cwd=REPO,
-                           capture_output=True)
+    with versions_to_time("bench-solver-") as (tmp, trees):
+        for repeat in range(SOLVER_REPEATS):
+            for case, command in SOLVER_CASES.items():
+                for variant, (tree, flags) in SOLVER_VARIANTS.items():
+                    progress(len(rows) + 1, total, f"{case}, {variant}")
+                    folder = Path(tmp) / f"run{len(rows)}"
+                    load = load_average()
+                    wall, cpu, rss = timed_solve(trees[tree], [*command, *flags], folder)
+                    results = parse_json_file(folder / "results.json")
+                    newton, timings = results["newton"], results["timings_cpu_s"]
+                    rows.append(dict(
+                        case=case, variant=variant, repeat=repeat, dofs=results["dofs"],
+                        newton_iterations=newton["iterations"], factorizations=newton["factorizations"],
+                        analyses=newton.get("analyses", newton["factorizations"]),
+                        gmres_iterations=newton["gmres_iterations"],
+                        refactor_budget=newton.get("refactor_budget"),
+                        factor_operations=newton.get("factor_operations"),
+                        factor_entries=newton.get("factor_entries"), mumps_solves=newton.get("mumps_solves"),
+                        mumps_factorization_s=timings.get("newton_mumps_factorization"),
+                        mumps_solve_s=timings.get("newton_mumps_solve"), wall_s=wall, cpu_s=cpu, peak_rss_mb=rss,
+                        cpu_newton=timings["newton"], cpu_newton_factor_solve=timings["newton_factor_solve"],
+                        cpu_all_steps=timings["all_steps"], centre_uz=results["probes"]["centre"][-1],
+                        load_1min_before=load))
     return pd.DataFrame(rows)
 
 
@@ -580,4 +595,180 @@ def solver():
     budget.to_csv(RESULTS_DIR / "bench_solver_budget.csv", index=False)
     print(markdown_table(solver_table(summary), digits=3))
     print(markdown_table(budget, digits=3))
+    return summary
+
+
+# ---- 3D cost by phase: the previous version against the current one (study bench-3d) ----
+
+PHASES_3D = ("geometry", "assembly", "newton_contact_assembly", "newton_factor_solve", "estimators", "output",
+             "all_steps")
+BENCH3D_LADDER = (8, 12, 16, 20)
+BENCH3D_REPEATS = int(os.environ.get("BENCH_3D_REPEATS", "2"))
+BENCH3D_VERSIONS = {f"previous ({SOLVER_BASELINE})": "baseline", "current": "current"}
+
+
+def bench3d_runs():
+    """The 3D default scene (ball on slab, estimators and outputs on, as a user runs
+    it) on the P1 and P2 ladders, each version in turn within each repeat."""
+    rows = []
+    points = [(degree, nx) for degree in (1, 2) for nx in BENCH3D_LADDER]
+    total = BENCH3D_REPEATS * len(points) * len(BENCH3D_VERSIONS)
+    with versions_to_time("bench-3d-") as (tmp, trees):
+        for repeat in range(BENCH3D_REPEATS):
+            for degree, nx in points:
+                for version, tree in BENCH3D_VERSIONS.items():
+                    progress(len(rows) + 1, total, f"3D P{degree} nx = {nx}, {version}")
+                    folder = Path(tmp) / f"run{len(rows)}"
+                    load = load_average()
+                    command = ["freefem/fd_contact_3d.edp", f"-Ddegree={degree}", "-nx", str(nx)]
+                    wall, cpu, rss = timed_solve(trees[tree], command, folder, quiet=[])
+                    results = parse_json_file(folder / "results.json")
+                    timings = results["timings_cpu_s"]
+                    rows.append(dict(
+                        version=version, degree=degree, nx=nx, repeat=repeat, dofs=results["dofs"],
+                        newton_iterations=results["newton"]["iterations"],
+                        factorizations=results["newton"]["factorizations"],
+                        eta=results["estimator"]["eta"], centre_uz=results["probes"]["centre"][-1],
+                        wall_s=wall, cpu_s=cpu, peak_rss_mb=rss, load_1min_before=load,
+                        **{f"cpu_{phase}": timings[phase] for phase in PHASES_3D}))
+                    shutil.rmtree(folder)
+    return pd.DataFrame(rows)
+
+
+def bench3d_summary(runs):
+    """Medians per version, degree and nx, with the current/previous ratios; the two
+    versions must give the same answer (solution and estimator) to round-off."""
+    quantities = ["wall_s", "peak_rss_mb"] + [f"cpu_{phase}" for phase in PHASES_3D]
+    rows = []
+    previous = next(iter(BENCH3D_VERSIONS))
+    for (degree, nx), group in runs.groupby(["degree", "nx"], sort=True):
+        for what in ("centre_uz", "eta"):
+            spread = float((group[what] - group[what].iloc[0]).abs().max() / abs(group[what].iloc[0]))
+            if spread > 1e-9:
+                raise DriverError(f"bench-3d: P{degree} nx = {nx}: {what} differs by {spread:.2e} between runs")
+        medians = {version: runs_v[quantities].median() for version, runs_v in group.groupby("version")}
+        for version, runs_v in group.groupby("version", sort=False):
+            row = dict(version=version, degree=degree, nx=nx, runs=len(runs_v), dofs=int(runs_v.dofs.iloc[0]),
+                       newton_iterations=int(runs_v.newton_iterations.iloc[0]),
+                       factorizations=int(runs_v.factorizations.iloc[0]), **medians[version].to_dict())
+            for what in ("wall_s", "cpu_all_steps", "cpu_estimators", "cpu_assembly", "peak_rss_mb"):
+                row[f"{what}_ratio"] = medians[version][what] / medians[previous][what]
+            rows.append(row)
+    summary = pd.DataFrame(rows)
+    summary["load_1min"] = f"{runs.load_1min_before.min():.2f} to {runs.load_1min_before.max():.2f}"
+    summary["machine"] = machine()
+    return summary
+
+
+def bench3d_scaling(summary):
+    """Least-squares exponent of each phase's median CPU time against DOFs, per
+    version and degree, without the coarsest mesh (whose fixed costs dominate)."""
+    rows = []
+    fine = summary[summary.nx > summary.nx.min()]
+    for (degree, version), group in fine.groupby(["degree", "version"], sort=False):
+        for phase in ("wall_s",) + tuple(f"cpu_{p}" for p in PHASES_3D):
+            if (group[phase] > 0).all() and len(group) >= 2:
+                rows.append(dict(degree=degree, quantity=phase, version=version,
+                                 exponent=loglog_slope(group.dofs, group[phase]), runs=len(group)))
+    long = pd.DataFrame(rows)
+    if long.empty:
+        raise DriverError("bench-3d: fewer than two meshes past the coarsest: no growth to fit")
+    return long.pivot_table(index=["degree", "quantity"], columns="version", values="exponent",
+                            sort=False).reset_index()
+
+
+def bench3d_table(summary):
+    """The docs table of bench_3d.csv."""
+    columns = {"version": "version", "degree": "P", "nx": "nx", "dofs": "DOFs", "newton_iterations": "Newton",
+               "wall_s": "wall s", "wall_s_ratio": "wall / previous", "cpu_assembly": "assembly CPU s",
+               "cpu_newton_factor_solve": "factor+solve CPU s", "cpu_estimators": "estimators CPU s",
+               "cpu_estimators_ratio": "estimators / previous", "cpu_output": "output CPU s",
+               "peak_rss_mb": "peak MB"}
+    return summary[list(columns)].rename(columns=columns)
+
+
+def bench3d():
+    """make bench: where a 3D run's time goes, by phase, in the previous version
+    and the current one, and how each phase grows with the DOFs."""
+    RESULTS_DIR.mkdir(exist_ok=True)
+    runs = bench3d_runs()
+    runs.to_csv(RESULTS_DIR / "bench_3d_runs.csv", index=False)
+    summary = bench3d_summary(runs)
+    summary.to_csv(RESULTS_DIR / "bench_3d.csv", index=False)
+    scaling = bench3d_scaling(summary)
+    scaling.to_csv(RESULTS_DIR / "bench_3d_scaling.csv", index=False)
+    print(markdown_table(bench3d_table(summary), digits=3))
+    print(markdown_table(scaling, digits=3))
+    return summary
+
+
+# ---- the 3D error tool against the graded reference (study bench-error-tool) ----
+
+ERROR_TOOL_NX = (8, 12, 16)
+ERROR_TOOL_REPEATS = int(os.environ.get("BENCH_ERROR_TOOL_REPEATS", "2"))
+
+
+def error_tool_runs():
+    """freefem/tools/fd_error_3d.edp of each version on the same P2 runs (current
+    tree, saved) against the graded 3D reference (computed once if missing, about an
+    hour: driver/studies/fd3d.py), each version in turn within each repeat."""
+    from driver.studies.fd3d import reference as fd3d_reference
+
+    ref = fd3d_reference()
+    rows = []
+    total = len(ERROR_TOOL_NX) * (1 + ERROR_TOOL_REPEATS * len(BENCH3D_VERSIONS))
+    with versions_to_time("bench-error-tool-") as (tmp, trees):
+        coarse = {}
+        for nx in ERROR_TOOL_NX:
+            progress(len(coarse) + 1, total, f"3D P2 nx = {nx}: the run measured")
+            coarse[nx] = tmp / f"p2_nx{nx}"
+            timed_solve(REPO, ["freefem/fd_contact_3d.edp", "-Ddegree=2", "-nx", str(nx), "-save", "1"], coarse[nx])
+        for repeat in range(ERROR_TOOL_REPEATS):
+            for nx, folder in coarse.items():
+                for version, tree in BENCH3D_VERSIONS.items():
+                    progress(len(coarse) + len(rows) + 1, total, f"error tool, P2 nx = {nx}, {version}")
+                    out = tmp / f"errors_{tree}_{nx}_{repeat}.json"
+                    load = load_average()
+                    wall, cpu, rss = timed_freefem(trees[tree], ["freefem/tools/fd_error_3d.edp", "-ref", str(ref),
+                                                                 "-run", str(folder), "-out", str(out)])
+                    errors = parse_json_file(out)
+                    rows.append(dict(version=version, nx=nx, repeat=repeat, wall_s=wall, cpu_s=cpu, peak_rss_mb=rss,
+                                     load_1min_before=load,
+                                     **{f"{key}_body{b}": errors[f"body{b}"][key] for b in (1, 2)
+                                        for key in ("l2_rel", "h1_rel")}))
+    return pd.DataFrame(rows)
+
+
+def error_tool_summary(runs):
+    """Medians per version and nx, the ratio to the previous version, and the largest
+    relative difference of the errors between the versions."""
+    rows = []
+    previous = next(iter(BENCH3D_VERSIONS))
+    errors = [c for c in runs.columns if c.startswith(("l2_rel", "h1_rel"))]
+    for nx, group in runs.groupby("nx", sort=True):
+        first = group[errors].iloc[0]
+        spread = float(((group[errors] - first).abs() / first.abs()).max().max())
+        if spread > 1e-9:
+            raise DriverError(f"bench-error-tool: nx = {nx}: the versions' errors differ by {spread:.2e} (relative)")
+        medians = {version: g[["wall_s", "cpu_s", "peak_rss_mb"]].median() for version, g in group.groupby("version")}
+        for version in BENCH3D_VERSIONS:
+            m = medians[version]
+            rows.append(dict(version=version, nx=nx, runs=int((group.version == version).sum()),
+                             wall_s=m.wall_s, cpu_s=m.cpu_s, peak_rss_mb=m.peak_rss_mb,
+                             wall_s_ratio=m.wall_s / medians[previous].wall_s, errors_rel_diff=spread,
+                             **first.to_dict()))
+    summary = pd.DataFrame(rows)
+    summary["load_1min"] = f"{runs.load_1min_before.min():.2f} to {runs.load_1min_before.max():.2f}"
+    summary["machine"] = machine()
+    return summary
+
+
+def error_tool_bench():
+    """make bench: the 3D error tool's time per run against the graded reference."""
+    RESULTS_DIR.mkdir(exist_ok=True)
+    runs = error_tool_runs()
+    runs.to_csv(RESULTS_DIR / "bench_error_tool_runs.csv", index=False)
+    summary = error_tool_summary(runs)
+    summary.to_csv(RESULTS_DIR / "bench_error_tool.csv", index=False)
+    print(markdown_table(summary.drop(columns=["machine", "load_1min"]), digits=3))
     return summary
