@@ -355,10 +355,7 @@ def overhead_summary(runs):
                        outside_freefem_s=(group.wall_s - group.freefem_wall_s).median(),
                        **{f"cpu_{p}": group[f"cpu_{p}"].median() for p in OVERHEAD_PHASES})
         rows.append(row)
-    summary = pd.DataFrame(rows)
-    summary["load_1min"] = f"{runs.load_1min_before.min():.2f} to {runs.load_1min_before.max():.2f}"
-    summary["machine"] = machine()
-    return summary
+    return stamped(rows, runs)
 
 
 def mumps_timers():
@@ -432,6 +429,25 @@ def overhead_table(summary):
                **{f"cpu_{p}": p.replace("newton_", "") for p in OVERHEAD_PHASES}}
     table = summary[[c for c in columns if c in summary]].rename(columns=columns)
     return table
+
+
+def stamped(rows, runs):
+    """Summary rows as a table with the machine and the load average (1 min) over
+    the runs they summarize."""
+    summary = pd.DataFrame(rows)
+    summary["load_1min"] = f"{runs.load_1min_before.min():.2f} to {runs.load_1min_before.max():.2f}"
+    summary["machine"] = machine()
+    return summary
+
+
+def save_results(**frames):
+    """Write each frame to results/NAME.csv (as soon as it exists: the runs of a long
+    study are kept even if a later step fails); the frames, in order (one: itself)."""
+    RESULTS_DIR.mkdir(exist_ok=True)
+    for name, frame in frames.items():
+        frame.to_csv(RESULTS_DIR / f"{name}.csv", index=False)
+    values = tuple(frames.values())
+    return values[0] if len(values) == 1 else values
 
 
 # ---- the Newton's linear solver: the previous version against the current one (study bench-solver) ----
@@ -550,10 +566,7 @@ def solver_summary(runs):
             for what in ("wall_s", "cpu_newton", "peak_rss_mb"):
                 row[f"{what}_ratio"] = row[what] / medians[baseline][what]
             rows.append(row)
-    summary = pd.DataFrame(rows)
-    summary["load_1min"] = f"{runs.load_1min_before.min():.2f} to {runs.load_1min_before.max():.2f}"
-    summary["machine"] = machine()
-    return summary
+    return stamped(rows, runs)
 
 
 def solver_budget(runs):
@@ -586,13 +599,8 @@ def solver():
     """make bench: the Newton's linear solves of the previous version (FreeFEM's
     MUMPS_seq) against the current plugin, with and without its two policies, on the
     2D default scene and two 3D P2 meshes; and the GMRES budget's model."""
-    RESULTS_DIR.mkdir(exist_ok=True)
-    runs = solver_runs()
-    runs.to_csv(RESULTS_DIR / "bench_solver_runs.csv", index=False)
-    summary = solver_summary(runs)
-    summary.to_csv(RESULTS_DIR / "bench_solver.csv", index=False)
-    budget = solver_budget(runs)
-    budget.to_csv(RESULTS_DIR / "bench_solver_budget.csv", index=False)
+    runs = save_results(bench_solver_runs=solver_runs())
+    summary, budget = save_results(bench_solver=solver_summary(runs), bench_solver_budget=solver_budget(runs))
     print(markdown_table(solver_table(summary), digits=3))
     print(markdown_table(budget, digits=3))
     return summary
@@ -654,10 +662,7 @@ def bench3d_summary(runs):
             for what in ("wall_s", "cpu_all_steps", "cpu_estimators", "cpu_assembly", "peak_rss_mb"):
                 row[f"{what}_ratio"] = medians[version][what] / medians[previous][what]
             rows.append(row)
-    summary = pd.DataFrame(rows)
-    summary["load_1min"] = f"{runs.load_1min_before.min():.2f} to {runs.load_1min_before.max():.2f}"
-    summary["machine"] = machine()
-    return summary
+    return stamped(rows, runs)
 
 
 def bench3d_scaling(summary):
@@ -690,13 +695,9 @@ def bench3d_table(summary):
 def bench3d():
     """make bench: where a 3D run's time goes, by phase, in the previous version
     and the current one, and how each phase grows with the DOFs."""
-    RESULTS_DIR.mkdir(exist_ok=True)
-    runs = bench3d_runs()
-    runs.to_csv(RESULTS_DIR / "bench_3d_runs.csv", index=False)
-    summary = bench3d_summary(runs)
-    summary.to_csv(RESULTS_DIR / "bench_3d.csv", index=False)
-    scaling = bench3d_scaling(summary)
-    scaling.to_csv(RESULTS_DIR / "bench_3d_scaling.csv", index=False)
+    runs = save_results(bench_3d_runs=bench3d_runs())
+    summary = save_results(bench_3d=bench3d_summary(runs))
+    scaling = save_results(bench_3d_scaling=bench3d_scaling(summary))
     print(markdown_table(bench3d_table(summary), digits=3))
     print(markdown_table(scaling, digits=3))
     return summary
@@ -757,18 +758,12 @@ def error_tool_summary(runs):
                              wall_s=m.wall_s, cpu_s=m.cpu_s, peak_rss_mb=m.peak_rss_mb,
                              wall_s_ratio=m.wall_s / medians[previous].wall_s, errors_rel_diff=spread,
                              **first.to_dict()))
-    summary = pd.DataFrame(rows)
-    summary["load_1min"] = f"{runs.load_1min_before.min():.2f} to {runs.load_1min_before.max():.2f}"
-    summary["machine"] = machine()
-    return summary
+    return stamped(rows, runs)
 
 
 def error_tool_bench():
     """make bench: the 3D error tool's time per run against the graded reference."""
-    RESULTS_DIR.mkdir(exist_ok=True)
-    runs = error_tool_runs()
-    runs.to_csv(RESULTS_DIR / "bench_error_tool_runs.csv", index=False)
-    summary = error_tool_summary(runs)
-    summary.to_csv(RESULTS_DIR / "bench_error_tool.csv", index=False)
+    runs = save_results(bench_error_tool_runs=error_tool_runs())
+    summary = save_results(bench_error_tool=error_tool_summary(runs))
     print(markdown_table(summary.drop(columns=["machine", "load_1min"]), digits=3))
     return summary
