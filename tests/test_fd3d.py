@@ -169,3 +169,17 @@ def test_graded_background_solves_and_its_errors_are_measured(run_scene, tmp_pat
     assert err["nested"] == 0 and err["body1"]["elements_extended"] > 0
     for body in ("body1", "body2"):
         assert 0.01 < err[body]["h1_rel"] < 1.5 and err[body]["l2_rel"] < err[body]["h1_rel"]
+
+
+def test_predictor_hands_over_from_above(run_scene):
+    # P2, nx = 10: the gap-prefix predictor climbs until a trial set is larger than
+    # the set its solution asks for, then semi-smooth Newton shrinks that set to the
+    # final one, never growing it again. A secant below the fixed point, as before,
+    # took 8 steps and 3 factorizations here (its set overshot to 0.031 against 0.0185).
+    run = run_scene(BALL, "mesh.nx=10", "method.degree=2", "output.estimators=false", "output.vtu=false")
+    n = run.results["newton"]
+    assert n["converged_by"] == "tolerance"
+    assert n["iterations"] <= 5 and n["factorizations"] <= 2
+    handed_over = n["active_measure"][1:]
+    assert all(b <= a for a, b in zip(handed_over, handed_over[1:]))
+    assert n["active_measure"][-1] == pytest.approx(0.018504, rel=1e-4)
