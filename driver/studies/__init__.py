@@ -36,6 +36,7 @@ REGISTRY = {
     "bench-overhead": ("bench", "overhead"),
     "bench-solver": ("bench", "solver"),
     "bench-3d": ("bench", "bench3d"),
+    "bench-3d-large": ("bench", "bench3d_large"),
     "bench-error-tool": ("bench", "error_tool_bench"),
 }
 

@@ -685,7 +685,8 @@ def bench3d_scaling(summary):
 def bench3d_table(summary):
     """The docs table of bench_3d.csv."""
     columns = {"version": "version", "degree": "P", "nx": "nx", "dofs": "DOFs", "newton_iterations": "Newton",
-               "wall_s": "wall s", "wall_s_ratio": "wall / previous", "cpu_assembly": "assembly CPU s",
+               "factorizations": "factorizations", "wall_s": "wall s", "wall_s_ratio": "wall / previous",
+               "cpu_assembly": "assembly CPU s",
                "cpu_newton_factor_solve": "factor+solve CPU s", "cpu_estimators": "estimators CPU s",
                "cpu_estimators_ratio": "estimators / previous", "cpu_output": "output CPU s",
                "peak_rss_mb": "peak MB"}
@@ -700,6 +701,68 @@ def bench3d():
     scaling = save_results(bench_3d_scaling=bench3d_scaling(summary))
     print(markdown_table(bench3d_table(summary), digits=3))
     print(markdown_table(scaling, digits=3))
+    return summary
+
+
+# ---- the large uniform 3D solve: the previous version against the current one (study bench-3d-large) ----
+
+# The uniform P2 ball on slab at h = 1/30 (about 248k DOFs), solved as the
+# convergence studies solve it (no estimators, no output files): the size where the
+# sparse factorization sets the cost. Long (the previous version alone took over 15
+# minutes here), hence one run per version by default.
+BENCH3D_LARGE_NX = int(os.environ.get("BENCH_3D_LARGE_NX", "30"))
+BENCH3D_LARGE_REPEATS = int(os.environ.get("BENCH_3D_LARGE_REPEATS", "1"))
+
+
+def bench3d_large_runs():
+    """Each version in turn within each repeat, P2 at nx = BENCH3D_LARGE_NX."""
+    rows = []
+    total = BENCH3D_LARGE_REPEATS * len(BENCH3D_VERSIONS)
+    with versions_to_time("bench-3d-large-") as (tmp, trees):
+        for repeat in range(BENCH3D_LARGE_REPEATS):
+            for version, tree in BENCH3D_VERSIONS.items():
+                progress(len(rows) + 1, total, f"3D P2 nx = {BENCH3D_LARGE_NX}, {version}")
+                folder = Path(tmp) / f"run{len(rows)}"
+                load = load_average()
+                command = ["freefem/fd_contact_3d.edp", "-Ddegree=2", "-nx", str(BENCH3D_LARGE_NX)]
+                wall, cpu, rss = timed_solve(trees[tree], command, folder)
+                results = parse_json_file(folder / "results.json")
+                timings, newton = results["timings_cpu_s"], results["newton"]
+                rows.append(dict(
+                    version=version, degree=2, nx=BENCH3D_LARGE_NX, repeat=repeat, dofs=results["dofs"],
+                    newton_iterations=newton["iterations"], factorizations=newton["factorizations"],
+                    gmres_iterations=newton["gmres_iterations"], centre_uz=results["probes"]["centre"][-1],
+                    wall_s=wall, cpu_s=cpu, peak_rss_mb=rss, load_1min_before=load,
+                    cpu_newton_factor_solve=timings["newton_factor_solve"],
+                    cpu_mumps_factorization=timings.get("newton_mumps_factorization", np.nan),
+                    cpu_all_steps=timings["all_steps"]))
+                shutil.rmtree(folder)
+    return pd.DataFrame(rows)
+
+
+def bench3d_large_summary(runs):
+    """Medians per version and the current/previous ratios; the versions must agree on
+    the centre's displacement to round-off."""
+    spread = float((runs.centre_uz - runs.centre_uz.iloc[0]).abs().max() / abs(runs.centre_uz.iloc[0]))
+    if spread > 1e-9:
+        raise DriverError(f"bench-3d-large: the centre's u_z differs by {spread:.2e} between runs")
+    quantities = ["wall_s", "cpu_s", "peak_rss_mb", "cpu_newton_factor_solve", "cpu_all_steps"]
+    previous = runs[runs.version == next(iter(BENCH3D_VERSIONS))][quantities].median()
+    rows = []
+    for version, group in runs.groupby("version", sort=False):
+        medians = group[quantities].median()
+        rows.append(dict(version=version, nx=BENCH3D_LARGE_NX, dofs=int(group.dofs.iloc[0]), runs=len(group),
+                         newton_iterations=int(group.newton_iterations.iloc[0]),
+                         factorizations=int(group.factorizations.iloc[0]), **medians.to_dict(),
+                         **{f"{q}_ratio": medians[q] / previous[q] for q in ("wall_s", "peak_rss_mb")}))
+    return stamped(rows, runs)
+
+
+def bench3d_large():
+    """make bench: the large uniform 3D P2 solve, previous version against current."""
+    runs = save_results(bench_3d_large_runs=bench3d_large_runs())
+    summary = save_results(bench_3d_large=bench3d_large_summary(runs))
+    print(markdown_table(summary, digits=3))
     return summary
 
 
