@@ -68,6 +68,24 @@ def test_p2_ladder_converges_on_the_curved_geometry(tmp_path):
     assert abs(u[80] - CENTRE_UY_REF) / abs(CENTRE_UY_REF) < 2.6e-4   # measured 2.29e-4
 
 
+@pytest.mark.parametrize("geometry, bound", [("curved", 1e-12), ("p1", None)])
+def test_box_face_traction_ends_on_the_exact_circle(run_scene, geometry, bound):
+    """A traction on the box sides of the hertz scene's lower disk acts on the part of
+    each side inside the circle, whose length is sqrt(R^2 - 0.5^2) - 0.25: with the
+    curved geometry its ends are the exact crossings (measured 4e-16 relative, NX = 20),
+    on the P1 geometry the P1 crossings (-4.6e-4)."""
+    loads = 'body2.load=[{ face = "xmin", traction = [0.001, 0.0] }, { face = "xmax", traction = [0.001, 0.0] }]'
+    r = run_scene("cases/hertz_cylinders.toml", loads, f"method.geometry={geometry}", "mesh.nx=20",
+                  "adapt.steps=0", "output.estimators=false", "output.vtu=false",
+                  "solver.allow_unbalanced=true").results
+    length = math.sqrt(0.75**2 - 0.5**2) - 0.25
+    error = r["supports"]["applied_traction_body2"][0] / (2 * 0.001 * length) - 1
+    if bound is None:
+        assert 1e-4 < abs(error) < 1e-3
+    else:
+        assert abs(error) < bound
+
+
 
 def test_ball_volume_and_area_3d(tmp_path):
     # FreeFem++ -nw -v 0 freefem/tools/curved_geometry_check_3d.edp -levels 2
