@@ -192,7 +192,7 @@ def two_body_solver_schema(floating_body, contact_points):
         "active0": Field("float", flag="active0", default=0.1, check=at_least(0.0), unit="1",
                          doc="first active set: gap <= active0 * h (then a secant predictor)"),
         "predictor_steps": Field("int", flag="predictor_steps", default=4, check=at_least(0),
-                                 doc="Newton steps of the secant predictor on the active measure"),
+                                 doc="at most this many Newton steps of the secant predictor on the active measure (it stops once a trial set is too large)"),
         "refactor_points": Field("int", flag="refactor_points", default=12, check=at_least(0),
                                  doc="re-use the factorization (GMRES) when fewer points changed"),
         "refactor_auto": Field("bool", flag="refactor_auto", default=True,
