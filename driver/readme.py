@@ -342,11 +342,12 @@ def pressure_gamma0():
 
 def curved_geometry_table(name, shape, counts):
     t = pd.read_csv(RESULTS / name)
-    measures = [c for c in ("area_rel_err", "volume_rel_err", "perimeter_rel_err", "poly_rel_err") if c in t]
+    measures = [c for c in ("area_rel_err", "volume_rel_err", "perimeter_rel_err", "poly_rel_err", "section_rel_err")
+                if c in t]
     wide = t.pivot_table(index=[shape, "nx"], columns="geometry", values=measures).reset_index()
     out = pd.DataFrame({shape: wide[shape], "NX": wide["nx"]})
     labels = {"area_rel_err": "area", "volume_rel_err": "volume", "perimeter_rel_err": "perimeter",
-              "poly_rel_err": "polynomial"}
+              "poly_rel_err": "polynomial", "section_rel_err": "section"}
     for value in measures:
         for geometry in ("p1", "curved"):
             out[f"{labels[value]} {geometry}"] = wide[(value, geometry)].map(lambda v: f"{v:.2g}")

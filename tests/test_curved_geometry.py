@@ -7,6 +7,7 @@ the commands named there), so that a regression of the geometry shows at once.
 import json
 import math
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -103,6 +104,10 @@ def test_ball_volume_and_area_3d(tmp_path):
     assert abs(offgrid["volume_rel_err"]) < 5e-5
     assert abs(offgrid["area_rel_err"]) < 5e-4
     assert abs(offgrid["poly_rel_err"]) < 2e-4
+    # the section by a mesh plane (cvFacePart3): -2.2e-7 and 1.4e-6; P1 -1.7e-2, -1.3e-2
+    assert abs(scene["section_rel_err"]) < 1e-6
+    assert abs(offgrid["section_rel_err"]) < 5e-6
+    assert abs(rows.loc[("scene_ball", 16, "p1")]["section_rel_err"]) > 1e-2
     # the P1 polyhedra, for scale: -3.1e-2 and -2.7e-2 in volume
     assert abs(rows.loc[("scene_ball", 16, "p1")]["volume_rel_err"]) > 2e-2
     assert abs(rows.loc[("offgrid_ball", 16, "p1")]["volume_rel_err"]) > 2e-2
@@ -127,6 +132,33 @@ def test_3d_solver_on_the_curved_geometry(tmp_path):
     assert curved["newton"]["residual"][-1] < 1e-12
     # the load the contact carries is the body force (f_z = -0.1) on the curved volume
     assert curved["contact"]["force_on_body1"][2] == pytest.approx(0.1 * curved["volumes"]["body1"], rel=1e-7)  # 2.2e-8
+
+
+def sphere_section_area():
+    """The part of the box side x = -0.5 inside the lower ball of sphere_on_sphere (centre
+    (0, 0, -0.75), R = 0.75) and above the box bottom z = -0.5: for |y| < 0.5, z from -0.5
+    to -0.75 + sqrt(0.3125 - y^2); by a composite Gauss rule on the pieces where that is
+    smooth."""
+    y_end = math.sqrt(0.3125 - 0.0625)   # where the circle meets z = -0.5
+    nodes, weights = np.polynomial.legendre.leggauss(40)
+    total = 0.0
+    for a, b in zip(np.linspace(-y_end, y_end, 41)[:-1], np.linspace(-y_end, y_end, 41)[1:]):
+        y = 0.5 * (a + b) + 0.5 * (b - a) * nodes
+        total += 0.5 * (b - a) * np.sum(weights * (-0.25 + np.sqrt(0.3125 - y**2)))
+    return total
+
+
+@pytest.mark.parametrize("geometry, low, high", [("curved", 0.0, 1e-5), ("p1", 1e-2, 3e-2)])
+def test_3d_box_face_traction_acts_on_the_exact_section(run_scene, geometry, low, high):
+    """A traction on the box side x = -0.5 of the lower ball of sphere_on_sphere acts on
+    the disk segment the side cuts from the ball: on the curved geometry on the part
+    bounded by the exact circle (fd3d/curved.idp cvFacePart3; measured 2.5e-6 relative at
+    nx = 8), on the P1 geometry on the clipped triangles (-1.9e-2)."""
+    load = 'body2.load=[{ face = "xmin", traction = [0.001, 0.0, 0.0] }]'
+    r = run_scene("cases/sphere_on_sphere.toml", load, f"method.geometry={geometry}", "mesh.nx=8",
+                  "output.vtu=false", "output.estimators=false").results
+    error = r["supports"]["applied_traction_body2"][0] / (0.001 * sphere_section_area()) - 1
+    assert low <= abs(error) < high, error
 
 
 def test_3d_geometry_flag_is_checked(tmp_path):
