@@ -172,12 +172,10 @@ def bench_3d():
 
 
 def bench_3d_large():
+    from driver.studies.bench import bench3d_large_table
+
     t = pd.read_csv(RESULTS / "bench_3d_large.csv")
-    columns = {"version": "version", "nx": "nx", "dofs": "DOFs", "newton_iterations": "Newton",
-               "factorizations": "factorizations", "wall_s": "wall s", "wall_s_ratio": "wall / previous",
-               "cpu_newton_factor_solve": "factor+solve CPU s", "peak_rss_mb": "peak MB",
-               "peak_rss_mb_ratio": "peak / previous"}
-    return (markdown_table(t[list(columns)].rename(columns=columns), digits=3)
+    return (markdown_table(bench3d_large_table(t), digits=3)
             + f"\n\nMachine: {t.machine.iloc[0]}; load average (1 min) {t.load_1min.iloc[0]} over the runs.")
 
 
