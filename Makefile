@@ -24,7 +24,7 @@ setup: setup-system setup-python $(PLUGIN)
 $(PLUGIN): freefem/plugins/contact_mumps.cpp | setup-system
 	@echo "building $@"
 	@tmp=$$(mktemp -d) && cp $< $$tmp/ && (cd $$tmp && ff-c++ contact_mumps.cpp -I/usr/include/mumps_seq \
-	    -ldmumps_seq -lmumps_common_seq -lmpiseq_seq > build.log 2>&1) \
+	    -ldmumps_seq -lmumps_common_seq -lmpiseq_seq -l:liblapack.so.3 > build.log 2>&1) \
 	  && mv $$tmp/contact_mumps.so $@ && rm -rf $$tmp \
 	  || { cat $$tmp/build.log; rm -rf $$tmp; echo "ERROR: could not build $@"; exit 1; }
 

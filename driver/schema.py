@@ -200,6 +200,12 @@ def two_body_solver_schema(floating_body, contact_points):
                                    "factorization costs (from MUMPS's operation count)"),
         "reuse_analysis": Field("bool", flag="reuse_analysis", default=True,
                                 doc="keep MUMPS's ordering and analysis while the matrix pattern stays"),
+        "low_rank": Field("bool", flag="low_rank", default=True,
+                          doc="solve a changed active set as a low-rank correction of the last "
+                              "factorization (Woodbury) while its columns cost less than a factorization"),
+        "out_of_core": Field("bool", flag="out_of_core", default=False,
+                             doc="MUMPS keeps the factors in files of the run's folder instead of memory "
+                                 "(deleted when the solve ends): less memory for large 3D runs"),
         "allow_unbalanced": Field("bool", flag="allow_unbalanced", default=False,
                                   doc=f"keep a run whose pins or mass term carry more than 1e-6 of the "
                                       f"{floating_body}'s load (flagged in results.json 'balance'); refused "

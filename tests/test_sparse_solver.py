@@ -1,5 +1,6 @@
 """The Newton's MUMPS plugin (freefem/plugins/contact_mumps.cpp): answers, analysis
-kept while the pattern stays, MUMPS's error codes reaching the script, and the
+kept while the pattern stays, the low-rank correction of the factors, MUMPS's error
+codes reaching the script, and the
 solver options on whole runs of the disk on slab (P2, NX = 80, a few seconds each)."""
 
 import json
@@ -16,7 +17,7 @@ fespace Vh(Th, P2);
 varf a(u, v) = int2d(Th)(dx(u)*dx(v) + dy(u)*dy(v) + 0.3*dx(u)*v) + on(1, 2, 3, 4, u = 0);
 varf l(u, v) = int2d(Th)(v);
 matrix A = a(Vh, Vh);
-real[int] b = l(0, Vh), x(b.n), y(b.n), s(11);
+real[int] b = l(0, Vh), x(b.n), y(b.n), s(13);
 int info = contactMumpsFactor(A, 1);
 info = contactMumpsSolve(x, b);
 set(A, solver = sparsesolver);
@@ -52,6 +53,50 @@ info = contactMumpsFactor(S, 1);
 cout << "SINGULAR " << info << " " << sparseFailure("factorization", info) << endl;
 info = contactMumpsSolve(y, b);
 cout << "NO_FACTORS " << info << endl;
+// low-rank correction: Kf = A + Pt' diag(d1) P factorized, then K2 = A + Pt' diag(d2) P
+// solved through contactMumpsLowRank(PtT, P, d2 - d1) and checked against a direct solve
+int nq = 40;
+int[int] pr(2*nq), pc(2*nq), tr(2*nq), tc(2*nq);
+real[int] pv(2*nq), tv(2*nq), d1(nq), d2(nq), dd(nq);
+for (int q = 0; q < nq; q++) {
+    pr[2*q] = q; pc[2*q] = 37*q + 11; pv[2*q] = 1.; pr[2*q + 1] = q; pc[2*q + 1] = 37*q + 12; pv[2*q + 1] = -0.5;
+    tr[2*q] = q; tc[2*q] = 37*q + 11; tv[2*q] = 1.; tr[2*q + 1] = q; tc[2*q + 1] = 37*q + 13; tv[2*q + 1] = 0.25;
+    d1[q] = (q < 20) ? 100. : 0.; d2[q] = (q >= 10 && q < 30) ? 100. : 0.;
+}
+matrix P = [pr, pc, pv], Pt = [tr, tc, tv];
+P.resize(nq, b.n); Pt.resize(nq, b.n);
+matrix PtT = Pt';
+macro lowRankCheck(label, dk, expected)
+{
+    matrix Dk = dk;
+    matrix T = Dk*P;
+    matrix Kc = PtT*T;
+    matrix K = A + Kc;
+    set(K, solver = sparsesolver);
+    real[int] xd = K^-1*b;
+    info = contactMumpsSolve(x, b);
+    xd -= x;
+    cout << label << " " << info << " " << (xd.linfty/x.linfty) << " " << expected << endl;
+}//
+{
+    matrix D1 = d1;
+    matrix T1 = D1*P;
+    matrix Kc1 = PtT*T1;
+    info = contactMumpsFactor(A, Kc1, 1);
+}
+dd = d2 - d1;
+int nCols = contactMumpsLowRank(PtT, P, dd, 100);
+lowRankCheck("LOW_RANK", d2, nCols)
+d2 = 0; d2[25] = 50.; d2[35] = 100.;
+dd = d2 - d1;
+nCols = contactMumpsLowRank(PtT, P, dd, 100);
+lowRankCheck("LOW_RANK_KEPT", d2, nCols)
+d2[36] = 100.; d2[37] = 100.;
+dd = d2 - d1;
+nCols = contactMumpsLowRank(PtT, P, dd, 1);
+lowRankCheck("LOW_RANK_REFUSED", d1, nCols)
+contactMumpsStats(s);
+cout << "LOW_RANK_STATS " << s[11] << endl;
 """
 
 
@@ -78,6 +123,16 @@ def test_plugin_answers_keeps_the_analysis_and_reports_failures(tmp_path):
     # and the factors are gone afterwards
     assert out["SINGULAR"][0] == "-10" and "numerically singular" in " ".join(out["SINGULAR"])
     assert out["NO_FACTORS"] == ["-1000"]
+    # low-rank correction (Woodbury): the answer of a direct solve of the changed
+    # matrix, one column per point whose term changed (0-9 removed, 20-29 added: 20);
+    # a second change (0-19 removed, 25 and 35 added) re-uses the kept columns and
+    # computes 10-19 and 35 only (11); a change needing more new columns than allowed
+    # is refused (-1004) and the solve is the factorized matrix's again
+    assert out["LOW_RANK"][0] == "0" and float(out["LOW_RANK"][1]) < 1e-12 and out["LOW_RANK"][2] == "20"
+    assert out["LOW_RANK_KEPT"][0] == "0" and float(out["LOW_RANK_KEPT"][1]) < 1e-12
+    assert out["LOW_RANK_KEPT"][2] == "11"
+    assert out["LOW_RANK_REFUSED"][2] == "-1004" and float(out["LOW_RANK_REFUSED"][1]) < 1e-12
+    assert out["LOW_RANK_STATS"] == ["31"]
 
 
 def run_2d(tmp_path, name, *extra):
@@ -90,19 +145,41 @@ def run_2d(tmp_path, name, *extra):
 
 def test_solver_options_change_the_work_not_the_answer(tmp_path):
     default = run_2d(tmp_path, "default")
-    fresh = run_2d(tmp_path, "fresh", "-reuse_analysis", 0, "-refactor_auto", 0)
+    gmres = run_2d(tmp_path, "gmres", "-low_rank", 0)
+    fresh = run_2d(tmp_path, "fresh", "-reuse_analysis", 0, "-refactor_auto", 0, "-low_rank", 0)
     n = default["newton"]
-    # measured: 2 factorizations, one analysis, a budget of 19 solves
-    assert n["analyses"] == 1 and n["factorizations"] == 2
-    assert fresh["newton"]["analyses"] == fresh["newton"]["factorizations"] == 2
+    # measured: one factorization and analysis, the later steps as low-rank
+    # corrections (41 columns in all, one solve each), a budget of 19 solves
+    assert n["analyses"] == 1 and n["factorizations"] == 1
+    assert 30 <= n["low_rank_columns"] <= 60 and n["gmres_iterations"] == n["iterations"] - 1
     assert 15 <= n["refactor_budget"] <= 25
+    # without the correction: 2 factorizations and 26 GMRES iterations on them
+    assert gmres["newton"]["factorizations"] == 2 and gmres["newton"]["low_rank_columns"] == 0
+    assert gmres["newton"]["gmres_iterations"] > 2*n["gmres_iterations"]
+    assert fresh["newton"]["analyses"] == fresh["newton"]["factorizations"] == 2
     centre = default["probes"]["centre"][1]
-    assert fresh["status"] == "converged"
-    assert abs(fresh["probes"]["centre"][1] - centre) <= 1e-12*abs(centre)
+    for other in (gmres, fresh):
+        assert other["status"] == "converged"
+        assert abs(other["probes"]["centre"][1] - centre) <= 1e-12*abs(centre)
 
 
 def test_out_of_range_solver_options_are_refused(tmp_path):
     proc = run_freefem("fd_contact_2d.edp", "-Ddegree=1", "-nx", 10, "-refactor_auto", -1, "-outdir", tmp_path / "x")
-    assert proc.returncode == 2 and "reuse_analysis and refactor_auto must be 0 or 1" in proc.stdout + proc.stderr
+    assert proc.returncode == 2 and "reuse_analysis, refactor_auto, low_rank and out_of_core must be 0 or 1" in proc.stdout + proc.stderr
     proc = run_freefem("fd_contact_3d.edp", "-nx", 4, "-reuse_analysis", 2, "-outdir", tmp_path / "y")
-    assert proc.returncode == 2 and "reuse_analysis and refactor_auto must be 0 or 1" in proc.stdout + proc.stderr
+    assert proc.returncode == 2 and "reuse_analysis, refactor_auto, low_rank and out_of_core must be 0 or 1" in proc.stdout + proc.stderr
+
+
+def test_out_of_core_factors_give_the_answer_and_leave_no_file(tmp_path):
+    runs = {}
+    for flag in (0, 1):
+        out = tmp_path / f"ooc{flag}"
+        proc = run_freefem("fd_contact_3d.edp", "-Ddegree=2", "-nx", 6, "-estimators", 0, "-vtu", 0, "-csv", 0,
+                           "-out_of_core", flag, "-outdir", out)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        runs[flag] = json.loads((out / "results.json").read_text())
+        # MUMPS's factor files (prefix mumps_factors) are gone with the solve
+        assert sorted(p.name for p in out.iterdir()) == ["results.json"]
+    centre = runs[0]["probes"]["centre"][2]
+    assert runs[1]["newton"]["factorizations"] == runs[0]["newton"]["factorizations"]
+    assert abs(runs[1]["probes"]["centre"][2] - centre) <= 1e-12*abs(centre)

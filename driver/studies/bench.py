@@ -463,10 +463,12 @@ SOLVER_CASES = {   # label -> direct FreeFEM command after the binary (embedded 
     "3D ball on slab, P2, nx = 12": ["freefem/fd_contact_3d.edp", "-Ddegree=2", "-nx", "12"],
     "3D ball on slab, P2, nx = 16": ["freefem/fd_contact_3d.edp", "-Ddegree=2", "-nx", "16"],
 }
+SOLVER_GMRES = "current, GMRES on the last factorization (no low-rank correction)"
 SOLVER_VARIANTS = {   # label -> (tree: "baseline" or "current", extra flags)
     f"previous version ({SOLVER_BASELINE})": ("baseline", []),
     "current, analysis every time, refactor_points only": ("current", ["-reuse_analysis", "0",
-                                                                        "-refactor_auto", "0"]),
+                                                                        "-refactor_auto", "0", "-low_rank", "0"]),
+    SOLVER_GMRES: ("current", ["-low_rank", "0"]),
     "current": ("current", []),
 }
 SOLVER_QUIET = ["-estimators", "0", "-vtu", "0", "-csv", "0"]
@@ -530,6 +532,8 @@ def solver_runs():
                         newton_iterations=newton["iterations"], factorizations=newton["factorizations"],
                         analyses=newton.get("analyses", newton["factorizations"]),
                         gmres_iterations=newton["gmres_iterations"],
+                        low_rank_columns=newton.get("low_rank_columns", 0),
+                        mumps_low_rank_columns_s=timings.get("newton_mumps_low_rank_columns", 0.),
                         refactor_budget=newton.get("refactor_budget"),
                         factor_operations=newton.get("factor_operations"),
                         factor_entries=newton.get("factor_entries"), mumps_solves=newton.get("mumps_solves"),
@@ -553,7 +557,8 @@ def solver_summary(runs):
             raise DriverError(f"bench-solver: {case}: the variants' answers differ by {spread:.2e} (relative)")
         medians = {}
         for variant, runs_v in group.groupby("variant", sort=False):
-            counts = runs_v[["newton_iterations", "factorizations", "analyses", "gmres_iterations"]]
+            counts = runs_v[["newton_iterations", "factorizations", "analyses", "gmres_iterations",
+                             "low_rank_columns"]]
             if counts.nunique().max() > 1:
                 raise DriverError(f"bench-solver: {case}, {variant}: repeats took different Newton paths")
             medians[variant] = dict(
@@ -570,19 +575,25 @@ def solver_summary(runs):
 
 
 def solver_budget(runs):
-    """The GMRES budget's model against MUMPS's own timings (current tree): measured
-    factorization/solve time ratio beside sqrt(operations/entries)."""
-    current = runs[runs.variant == "current"]
+    """The budgets' model against MUMPS's own timings: the factorization/solve time
+    ratio beside sqrt(operations/entries) (current tree without the low-rank
+    correction, whose GMRES makes many single solves), and how many single solves
+    one low-rank column costs (current tree)."""
+    gmres, current = runs[runs.variant == SOLVER_GMRES], runs[runs.variant == "current"]
     rows = []
-    for case, group in current.groupby("case", sort=False):
+    for case, group in gmres.groupby("case", sort=False):
         per_factor = (group.mumps_factorization_s / group.factorizations).median()
         per_solve = (group.mumps_solve_s / group.mumps_solves).median()
         root = float(np.sqrt(group.factor_operations.iloc[0] / group.factor_entries.iloc[0]))
+        low = current[current.case == case]
+        per_column = (low.mumps_low_rank_columns_s / low.low_rank_columns).median()
         rows.append(dict(case=case, factor_operations=group.factor_operations.iloc[0],
                          factor_entries=group.factor_entries.iloc[0], sqrt_operations_per_entry=root,
                          factorization_s=per_factor, solve_s=per_solve, time_ratio=per_factor / per_solve,
                          time_ratio_over_sqrt=per_factor / per_solve / root,
-                         refactor_budget=group.refactor_budget.iloc[0]))
+                         refactor_budget=group.refactor_budget.iloc[0],
+                         low_rank_columns=int(low.low_rank_columns.iloc[0]), column_s=per_column,
+                         solves_per_column=per_column / per_solve))
     return pd.DataFrame(rows)
 
 
@@ -590,6 +601,7 @@ def solver_table(summary):
     """The docs table of bench_solver.csv."""
     columns = {"case": "case", "variant": "Newton's linear solver", "dofs": "DOFs", "newton_iterations": "Newton",
                "factorizations": "factorizations", "analyses": "analyses", "gmres_iterations": "GMRES",
+               "low_rank_columns": "low-rank columns",
                "wall_s": "wall s", "wall_s_ratio": "wall / previous", "cpu_newton": "Newton CPU s",
                "cpu_newton_ratio": "Newton / previous", "peak_rss_mb": "peak MB"}
     return summary[list(columns)].rename(columns=columns)
@@ -612,23 +624,24 @@ PHASES_3D = ("geometry", "assembly", "newton_contact_assembly", "newton_factor_s
              "all_steps")
 BENCH3D_LADDER = (8, 12, 16, 20)
 BENCH3D_REPEATS = int(os.environ.get("BENCH_3D_REPEATS", "2"))
-BENCH3D_VERSIONS = {f"previous ({SOLVER_BASELINE})": "baseline", "current": "current"}
+BENCH3D_VERSIONS = {f"previous ({SOLVER_BASELINE})": ("baseline", []), "current": ("current", [])}
 
 
-def bench3d_runs(points, repeats, quiet, prefix):
+def bench3d_runs(points, repeats, quiet, prefix, versions=BENCH3D_VERSIONS):
     """The 3D default scene (ball on slab) at each (degree, nx) of `points`, each
-    version in turn within each repeat, with the FreeFEM flags `quiet` (none: estimators
-    and outputs on, as a user runs it)."""
+    version (label -> tree, extra flags; the first is the reference of the ratios) in
+    turn within each repeat, with the FreeFEM flags `quiet` (none: estimators and
+    outputs on, as a user runs it)."""
     rows = []
-    total = repeats * len(points) * len(BENCH3D_VERSIONS)
+    total = repeats * len(points) * len(versions)
     with versions_to_time(prefix) as (tmp, trees):
         for repeat in range(repeats):
             for degree, nx in points:
-                for version, tree in BENCH3D_VERSIONS.items():
+                for version, (tree, flags) in versions.items():
                     progress(len(rows) + 1, total, f"3D P{degree} nx = {nx}, {version}")
                     folder = Path(tmp) / f"run{len(rows)}"
                     load = load_average()
-                    command = ["freefem/fd_contact_3d.edp", f"-Ddegree={degree}", "-nx", str(nx)]
+                    command = ["freefem/fd_contact_3d.edp", f"-Ddegree={degree}", "-nx", str(nx), *flags]
                     wall, cpu, rss = timed_solve(trees[tree], command, folder, quiet=quiet)
                     results = parse_json_file(folder / "results.json")
                     timings, newton = results["timings_cpu_s"], results["newton"]
@@ -636,6 +649,8 @@ def bench3d_runs(points, repeats, quiet, prefix):
                         version=version, degree=degree, nx=nx, repeat=repeat, dofs=results["dofs"],
                         newton_iterations=newton["iterations"], factorizations=newton["factorizations"],
                         gmres_iterations=newton["gmres_iterations"],
+                        low_rank_columns=newton.get("low_rank_columns", 0),
+                        mumps_low_rank_columns_s=timings.get("newton_mumps_low_rank_columns", 0.),
                         eta=results["estimator"]["eta"] if "estimator" in results else np.nan,
                         centre_uz=results["probes"]["centre"][-1],
                         wall_s=wall, cpu_s=cpu, peak_rss_mb=rss, load_1min_before=load,
@@ -651,7 +666,7 @@ def bench3d_summary(runs, study="bench-3d"):
     round-off."""
     quantities = ["wall_s", "cpu_s", "peak_rss_mb"] + [f"cpu_{phase}" for phase in PHASES_3D]
     rows = []
-    previous = next(iter(BENCH3D_VERSIONS))
+    previous = runs.version.iloc[0]   # the first version timed
     for (degree, nx), group in runs.groupby(["degree", "nx"], sort=True):
         for what in ("centre_uz", "eta"):
             if group[what].isna().all():   # the estimator, when the runs skip it
@@ -663,7 +678,9 @@ def bench3d_summary(runs, study="bench-3d"):
         for version, runs_v in group.groupby("version", sort=False):
             row = dict(version=version, degree=degree, nx=nx, runs=len(runs_v), dofs=int(runs_v.dofs.iloc[0]),
                        newton_iterations=int(runs_v.newton_iterations.iloc[0]),
-                       factorizations=int(runs_v.factorizations.iloc[0]), **medians[version].to_dict())
+                       factorizations=int(runs_v.factorizations.iloc[0]),
+                       low_rank_columns=int(runs_v.low_rank_columns.iloc[0]) if "low_rank_columns" in runs_v else 0,
+                       **medians[version].to_dict())
             for what in ("wall_s", "cpu_all_steps", "cpu_estimators", "cpu_assembly", "peak_rss_mb"):
                 row[f"{what}_ratio"] = medians[version][what] / medians[previous][what]
             rows.append(row)
@@ -718,12 +735,15 @@ def bench3d():
 # minutes here), hence one run per version by default.
 BENCH3D_LARGE_NX = int(os.environ.get("BENCH_3D_LARGE_NX", "30"))
 BENCH3D_LARGE_REPEATS = int(os.environ.get("BENCH_3D_LARGE_REPEATS", "1"))
+BENCH3D_LARGE_VERSIONS = {**BENCH3D_VERSIONS,
+                          "current, factors out of core": ("current", ["-out_of_core", "1"])}
 
 
 def bench3d_large_table(summary):
     """The docs table of bench_3d_large.csv."""
     columns = {"version": "version", "nx": "nx", "dofs": "DOFs", "newton_iterations": "Newton",
-               "factorizations": "factorizations", "wall_s": "wall s", "wall_s_ratio": "wall / previous",
+               "factorizations": "factorizations", "low_rank_columns": "low-rank columns",
+               "wall_s": "wall s", "wall_s_ratio": "wall / previous",
                "cpu_newton_factor_solve": "factor+solve CPU s", "peak_rss_mb": "peak MB",
                "peak_rss_mb_ratio": "peak / previous"}
     return summary[list(columns)].rename(columns=columns)
@@ -731,7 +751,8 @@ def bench3d_large_table(summary):
 
 def bench3d_large():
     """make bench: the large uniform 3D P2 solve, previous version against current."""
-    runs = bench3d_runs([(2, BENCH3D_LARGE_NX)], BENCH3D_LARGE_REPEATS, quiet=SOLVER_QUIET, prefix="bench-3d-large-")
+    runs = bench3d_runs([(2, BENCH3D_LARGE_NX)], BENCH3D_LARGE_REPEATS, quiet=SOLVER_QUIET, prefix="bench-3d-large-",
+                        versions=BENCH3D_LARGE_VERSIONS)
     save_results(bench_3d_large_runs=runs)
     summary = save_results(bench_3d_large=bench3d_summary(runs, study="bench-3d-large"))
     print(markdown_table(bench3d_large_table(summary), digits=3))
@@ -761,7 +782,7 @@ def error_tool_runs():
             timed_solve(REPO, ["freefem/fd_contact_3d.edp", "-Ddegree=2", "-nx", str(nx), "-save", "1"], coarse[nx])
         for repeat in range(ERROR_TOOL_REPEATS):
             for nx, folder in coarse.items():
-                for version, tree in BENCH3D_VERSIONS.items():
+                for version, (tree, _) in BENCH3D_VERSIONS.items():
                     progress(len(coarse) + len(rows) + 1, total, f"error tool, P2 nx = {nx}, {version}")
                     out = tmp / f"errors_{tree}_{nx}_{repeat}.json"
                     load = load_average()
@@ -779,7 +800,7 @@ def error_tool_summary(runs):
     """Medians per version and nx, the ratio to the previous version, and the largest
     relative difference of the errors between the versions."""
     rows = []
-    previous = next(iter(BENCH3D_VERSIONS))
+    previous = runs.version.iloc[0]   # the first version timed
     errors = [c for c in runs.columns if c.startswith(("l2_rel", "h1_rel"))]
     for nx, group in runs.groupby("nx", sort=True):
         first = group[errors].iloc[0]

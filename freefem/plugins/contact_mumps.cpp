@@ -23,12 +23,30 @@
 //   int contactMumpsSolve(real[int] x, real[int] b)
 //       x = K^-1 b with the last factorization; returns INFOG(1) (-1000 when there is
 //       no factorization or the sizes differ).
+//   int contactMumpsLowRank(matrix PtT, matrix P, real[int] d, int maxNew)
+//       solve from now on with K = Kf + PtT diag(d) P instead of the factorized Kf
+//       (PtT: n x nq, P: nq x n, d: one entry per point, 0 where the point's term is
+//       the factorized one): the Newton's change of active set, of rank r = the
+//       points with d != 0. Woodbury's identity with the capacitance matrix
+//       C = diag(1/d) + P K_f^-1 PtT on those points (dense, r x r, LAPACK's LU):
+//       x = Kf^-1 (b - PtT_S C^-1 P_S Kf^-1 b), two solves with the factors. The
+//       columns P Kf^-1 PtT e_q are computed once per factorization (a sparse
+//       right-hand side per point, solved in blocks) and kept for later steps.
+//       Returns the number of columns it had to compute (>= 0); -1004 when that
+//       would exceed maxNew (nothing done: the caller refactorizes); -1005 when C is
+//       singular; -1000 / -1001 as below. All of d zero turns the correction off.
+//   int contactMumpsOutOfCore(string dir)
+//       "": factors in memory (the default); else the next factorizations write their
+//       factors to files in dir (MUMPS's out-of-core mode, ICNTL(22) = 1, prefix
+//       mumps_factors), which MUMPS deletes when the instance is released. Returns 0,
+//       or -1006 when dir is longer than MUMPS accepts (255 bytes).
 //   int contactMumpsStats(real[int] s)
-//       s (resized to 11) = analyses, numeric factorizations, solves, entries in the
+//       s (resized to 13) = analyses, numeric factorizations, solves, entries in the
 //       factors (INFOG(29)), operations of the last elimination (RINFOG(3)), the
 //       last factorization's peak memory in MB (INFOG(22)), the size n of the last
 //       matrix, INFOG(1) of the last call, CPU seconds spent in MUMPS's analyses,
-//       numeric factorizations and solves (counts and seconds: process totals).
+//       numeric factorizations and solves, the low-rank columns computed and their
+//       CPU seconds (counts and seconds: process totals).
 //   int contactMumpsRelease()
 //       frees the instance (the next factorization analyses again).
 //
@@ -43,15 +61,26 @@
 #include <iostream>
 #include <ctime>
 #include <vector>
+#include <algorithm>
+#include <cstring>
+#include <string>
 #include "ff++.hpp"
+#include "AFunction_ext.hpp"
 #include "mumps_seq/mpi.h"
 #include "dmumps_c.h"
+
+extern "C" {
+void dgetrf_(int *m, int *n, double *a, int *lda, int *ipiv, int *info);
+void dgetrs_(char *trans, int *n, int *nrhs, double *a, int *lda, int *ipiv, double *b, int *ldb, int *info);
+}
 
 namespace {
 
 const int kJobInit = -1, kJobEnd = -2, kJobAnalyse = 1, kJobFactor = 2, kJobSolve = 3;
 const int kHostWorks = 1, kUseCommWorld = -987654;
-const long kNoFactorization = -1000, kNotSquare = -1001, kNoMatrix = -1002;
+const long kNoFactorization = -1000, kNotSquare = -1001, kNoMatrix = -1002, kTooManyColumns = -1004,
+           kSingularCapacitance = -1005, kDirectoryTooLong = -1006;
+const int kColumnBlock = 32;   // right-hand sides per MUMPS solve of the low-rank columns
 
 struct ContactMumps {
     DMUMPS_STRUC_C id;
@@ -59,8 +88,28 @@ struct ContactMumps {
     std::vector<int> irn, jcn;       // the analysed pattern, 1-based, row by row
     std::vector<int> rowsNext, colsNext;   // the pattern being loaded
     std::vector<double> values;
-    long analyses = 0, factorizations = 0, solves = 0, lastInfo = 0;
-    double analysisSeconds = 0, factorSeconds = 0, solveSeconds = 0;   // CPU, MUMPS calls only
+    long analyses = 0, factorizations = 0, solves = 0, lastInfo = 0, columnsSolved = 0;
+    double analysisSeconds = 0, factorSeconds = 0, solveSeconds = 0, columnSeconds = 0;   // CPU, MUMPS calls only
+
+    // Low-rank correction (contactMumpsLowRank): the kept columns g_q = P Kf^-1 PtT e_q
+    // (columnOf[q] indexes columns), and the correction in force: its points S, the
+    // LU of C, P's rows and PtT's columns on S.
+    std::string outOfCoreDir;   // "" in core
+    std::vector<int> columnOf;
+    std::vector<std::vector<double> > columns;
+    std::vector<int> corrPoints, corrPivots;
+    std::vector<double> corrLu;
+    std::vector<int> corrRowStart, corrRowCol;   // P_S as CSR
+    std::vector<double> corrRowVal;
+    std::vector<int> corrUpRow, corrUpPoint;     // PtT_S as triplets (row, position in S, value)
+    std::vector<double> corrUpVal;
+
+    void dropCorrection() {
+        corrPoints.clear(); corrPivots.clear(); corrLu.clear();
+        corrRowStart.clear(); corrRowCol.clear(); corrRowVal.clear();
+        corrUpRow.clear(); corrUpPoint.clear(); corrUpVal.clear();
+    }
+    void dropColumns() { columnOf.clear(); columns.clear(); dropCorrection(); }
 
     int &icntl(int i) { return id.icntl[i - 1]; }
     int infog(int i) const { return id.infog[i - 1]; }
@@ -100,6 +149,7 @@ struct ContactMumps {
         }
         started = factorized = false;
         irn.clear(); jcn.clear(); values.clear(); rowsNext.clear(); colsNext.clear();
+        dropColumns();
     }
     ~ContactMumps() { release(); }
 
@@ -137,6 +187,7 @@ struct ContactMumps {
         if (A.n != A.m || A.half) return lastInfo = kNotSquare;
         if (B && (B->n != A.n || B->m != A.m || B->half)) return lastInfo = kNotSquare;
         start();
+        dropColumns();
         bool same = load(A, B) && reuse;
         id.n = A.n;
         id.nnz = (MUMPS_INT8)irn.size();
@@ -146,6 +197,11 @@ struct ContactMumps {
         icntl(5) = 0;    // assembled matrix
         icntl(7) = 7;    // automatic ordering
         icntl(18) = 0;   // centralized on the host
+        icntl(22) = outOfCoreDir.empty() ? 0 : 1;
+        if (!outOfCoreDir.empty()) {
+            std::strncpy(id.ooc_tmpdir, outOfCoreDir.c_str(), sizeof(id.ooc_tmpdir) - 1);
+            std::strncpy(id.ooc_prefix, "mumps_factors", sizeof(id.ooc_prefix) - 1);
+        }
         if (!same || !factorized) {
             analysisSeconds += call(kJobAnalyse);
             if (lastInfo < 0) { release(); return lastInfo; }
@@ -158,18 +214,123 @@ struct ContactMumps {
         return lastInfo;
     }
 
-    long solve(KN<double> &x, const KN<double> &b) {
-        if (!factorized || b.N() != id.n) return lastInfo = kNoFactorization;
-        x.resize(b.N());
-        for (int i = 0; i < id.n; ++i) x[i] = b[i];
+    // x = Kf^-1 x in place (one right-hand side).
+    long solveInPlace(double *x) {
         id.nrhs = 1;
         id.lrhs = id.n;
-        id.rhs = (double *)x;
+        id.rhs = x;
         icntl(9) = 1;
+        icntl(20) = 0;
         solveSeconds += call(kJobSolve);
         id.rhs = 0;
         if (lastInfo >= 0) ++solves;
         return lastInfo;
+    }
+
+    long solve(KN<double> &x, const KN<double> &b) {
+        if (!factorized || b.N() != id.n) return lastInfo = kNoFactorization;
+        x.resize(b.N());
+        for (int i = 0; i < id.n; ++i) x[i] = b[i];
+        if (solveInPlace((double *)x) < 0 || corrPoints.empty()) return lastInfo;
+        // Woodbury: w = C^-1 P_S y, then x = Kf^-1 (b - PtT_S w)
+        int r = (int)corrPoints.size(), one = 1, info = 0;
+        std::vector<double> w(r, 0.);
+        for (int a = 0; a < r; ++a)
+            for (int k = corrRowStart[a]; k < corrRowStart[a + 1]; ++k) w[a] += corrRowVal[k] * x[corrRowCol[k]];
+        char notrans = 'N';
+        dgetrs_(&notrans, &r, &one, corrLu.data(), &r, corrPivots.data(), w.data(), &r, &info);
+        for (int i = 0; i < id.n; ++i) x[i] = b[i];
+        for (size_t k = 0; k < corrUpRow.size(); ++k) x[corrUpRow[k]] -= corrUpVal[k] * w[corrUpPoint[k]];
+        return solveInPlace((double *)x);
+    }
+
+    // The columns g_q = P Kf^-1 PtT e_q of the points in want, by blocks of sparse
+    // right-hand sides (MUMPS exploits their sparsity in the forward substitution).
+    long computeColumns(HashMatrix<int, double> &PtT, HashMatrix<int, double> &P, const std::vector<int> &want) {
+        const int n = id.n, nq = P.n;
+        std::vector<int> slot(nq, -1);
+        for (size_t c = 0; c < want.size(); ++c) slot[want[c]] = (int)c;
+        std::vector<std::vector<int> > rowsOf(want.size());
+        std::vector<std::vector<double> > valsOf(want.size());
+        for (size_t k = 0; k < (size_t)PtT.nnz; ++k) {
+            const int c = slot[PtT.j[k]];
+            if (c >= 0 && PtT.aij[k] != 0.) { rowsOf[c].push_back(PtT.i[k] + 1); valsOf[c].push_back(PtT.aij[k]); }
+        }
+        P.CSR();
+        for (size_t c0 = 0; c0 < want.size(); c0 += kColumnBlock) {
+            const int nb = (int)std::min<size_t>(kColumnBlock, want.size() - c0);
+            std::vector<int> ptr(nb + 1, 1), rows;
+            std::vector<double> vals, dense((size_t)n * nb, 0.);
+            for (int c = 0; c < nb; ++c) {
+                rows.insert(rows.end(), rowsOf[c0 + c].begin(), rowsOf[c0 + c].end());
+                vals.insert(vals.end(), valsOf[c0 + c].begin(), valsOf[c0 + c].end());
+                ptr[c + 1] = (int)rows.size() + 1;
+            }
+            if (rows.empty()) { rows.push_back(1); vals.push_back(0.); ptr[nb] = 2; }
+            id.nrhs = nb;
+            id.lrhs = n;
+            id.rhs = dense.data();
+            id.nz_rhs = (int)rows.size();
+            id.rhs_sparse = vals.data();
+            id.irhs_sparse = rows.data();
+            id.irhs_ptr = ptr.data();
+            icntl(9) = 1;
+            icntl(20) = 1;
+            columnSeconds += call(kJobSolve);
+            icntl(20) = 0;
+            id.rhs = 0; id.rhs_sparse = 0; id.irhs_sparse = 0; id.irhs_ptr = 0; id.nz_rhs = 0;
+            if (lastInfo < 0) return lastInfo;
+            for (int c = 0; c < nb; ++c) {
+                const double *z = dense.data() + (size_t)c * n;
+                std::vector<double> g(nq, 0.);
+                for (int i = 0; i < nq; ++i)
+                    for (int k = P.p[i]; k < P.p[i + 1]; ++k) g[i] += P.aij[k] * z[P.j[k]];
+                columnOf[want[c0 + c]] = (int)columns.size();
+                columns.push_back(g);
+                ++columnsSolved;
+            }
+        }
+        return 0;
+    }
+
+    long lowRank(HashMatrix<int, double> &PtT, HashMatrix<int, double> &P, const KN<double> &d, long maxNew) {
+        if (!factorized) return lastInfo = kNoFactorization;
+        const int nq = P.n;
+        if (P.m != id.n || PtT.n != id.n || PtT.m != nq || d.N() != nq) return lastInfo = kNotSquare;
+        if ((int)columnOf.size() != nq) { columnOf.assign(nq, -1); columns.clear(); }
+        dropCorrection();
+        std::vector<int> want;
+        for (int q = 0; q < nq; ++q)
+            if (d[q] != 0.) {
+                corrPoints.push_back(q);
+                if (columnOf[q] < 0) want.push_back(q);
+            }
+        if ((long)want.size() > maxNew) { dropCorrection(); return kTooManyColumns; }
+        if (!want.empty() && computeColumns(PtT, P, want) < 0) { dropCorrection(); return lastInfo; }
+        int r = (int)corrPoints.size(), info = 0;
+        if (r == 0) return 0;
+        corrLu.assign((size_t)r * r, 0.);
+        for (int b = 0; b < r; ++b) {
+            const std::vector<double> &g = columns[columnOf[corrPoints[b]]];
+            for (int a = 0; a < r; ++a) corrLu[a + (size_t)b * r] = g[corrPoints[a]];
+            corrLu[b + (size_t)b * r] += 1. / d[corrPoints[b]];
+        }
+        corrPivots.assign(r, 0);
+        dgetrf_(&r, &r, corrLu.data(), &r, corrPivots.data(), &info);
+        if (info != 0) { dropCorrection(); return kSingularCapacitance; }
+        std::vector<int> position(nq, -1);
+        for (int a = 0; a < r; ++a) position[corrPoints[a]] = a;
+        corrRowStart.assign(1, 0);
+        for (int a = 0; a < r; ++a) {
+            const int q = corrPoints[a];
+            for (int k = P.p[q]; k < P.p[q + 1]; ++k) { corrRowCol.push_back(P.j[k]); corrRowVal.push_back(P.aij[k]); }
+            corrRowStart.push_back((int)corrRowCol.size());
+        }
+        for (size_t k = 0; k < (size_t)PtT.nnz; ++k) {
+            const int a = position[PtT.j[k]];
+            if (a >= 0 && PtT.aij[k] != 0.) { corrUpRow.push_back(PtT.i[k]); corrUpPoint.push_back(a); corrUpVal.push_back(PtT.aij[k]); }
+        }
+        return (long)want.size();
     }
 };
 
@@ -196,9 +357,24 @@ long contactMumpsSolve(KN<double> *const &x, KN<double> *const &b) {
     return instance().solve(*x, *b);
 }
 
+long contactMumpsLowRank(Matrice_Creuse<double> *const &PtT, Matrice_Creuse<double> *const &P,
+                         KN<double> *const &d, const long &maxNew) {
+    HashMatrix<int, double> *ht = PtT ? PtT->pHM() : 0, *hp = P ? P->pHM() : 0;
+    if (!ht || !hp) return instance().lastInfo = kNoMatrix;
+    return instance().lowRank(*ht, *hp, *d, maxNew);
+}
+
+long contactMumpsOutOfCore(string *const &dir) {
+    ContactMumps &m = instance();
+    const std::string d = dir ? *dir : std::string();
+    if (d.size() >= sizeof(m.id.ooc_tmpdir)) return kDirectoryTooLong;
+    m.outOfCoreDir = d;
+    return 0;
+}
+
 long contactMumpsStats(KN<double> *const &s) {
     ContactMumps &m = instance();
-    s->resize(11);
+    s->resize(13);
     (*s)[0] = m.analyses;
     (*s)[1] = m.factorizations;
     (*s)[2] = m.solves;
@@ -210,6 +386,8 @@ long contactMumpsStats(KN<double> *const &s) {
     (*s)[8] = m.analysisSeconds;
     (*s)[9] = m.factorSeconds;
     (*s)[10] = m.solveSeconds;
+    (*s)[11] = m.columnsSolved;
+    (*s)[12] = m.columnSeconds;
     return 0;
 }
 
@@ -234,6 +412,10 @@ static void Load_Init() {
                new OneOperator3_<long, Matrice_Creuse<double> *, Matrice_Creuse<double> *, long>(
                    contactMumpsFactorSum));
     Global.Add("contactMumpsSolve", "(", new OneOperator2_<long, KN<double> *, KN<double> *>(contactMumpsSolve));
+    Global.Add("contactMumpsLowRank", "(",
+               new OneOperator4_<long, Matrice_Creuse<double> *, Matrice_Creuse<double> *, KN<double> *, long>(
+                   contactMumpsLowRank));
+    Global.Add("contactMumpsOutOfCore", "(", new OneOperator1_<long, string *>(contactMumpsOutOfCore));
     Global.Add("contactMumpsStats", "(", new OneOperator1_<long, KN<double> *>(contactMumpsStats));
     Global.Add("contactMumpsRelease", "(", new OneOperator0<long>(contactMumpsRelease));
 }
