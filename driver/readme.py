@@ -160,7 +160,7 @@ def bench_solver_budget():
     t = pd.read_csv(RESULTS / "bench_solver_budget.csv")
     return markdown_table(t[["case", "factor_operations", "factor_entries", "sqrt_operations_per_entry",
                              "factorization_s", "solve_s", "time_ratio", "time_ratio_over_sqrt",
-                             "refactor_budget"]], digits=3)
+                             "refactor_budget", "low_rank_columns", "column_s", "solves_per_column"]], digits=3)
 
 
 def bench_3d():
