@@ -320,6 +320,7 @@ struct ContactMumps {
         if (info != 0) { dropCorrection(); return kSingularCapacitance; }
         std::vector<int> position(nq, -1);
         for (int a = 0; a < r; ++a) position[corrPoints[a]] = a;
+        P.CSR();   // row pointers (no work when P is already in that state)
         corrRowStart.assign(1, 0);
         for (int a = 0; a < r; ++a) {
             const int q = corrPoints[a];
