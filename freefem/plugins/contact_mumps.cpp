@@ -244,19 +244,20 @@ struct ContactMumps {
         return solveInPlace((double *)x);
     }
 
-    // The columns g_q = P Kf^-1 PtT e_q of the points in want, by blocks of sparse
-    // right-hand sides (MUMPS exploits their sparsity in the forward substitution).
-    long computeColumns(HashMatrix<int, double> &PtT, HashMatrix<int, double> &P, const std::vector<int> &want) {
+    // The columns g_q = P Kf^-1 PtT e_q of the points in want (positions in the
+    // correction's points), by blocks of sparse right-hand sides (MUMPS exploits their
+    // sparsity in the forward substitution): PtT's columns are the correction's
+    // triplets, P is in row order.
+    long computeColumns(HashMatrix<int, double> &P, const std::vector<int> &want) {
         const int n = id.n, nq = P.n;
-        std::vector<int> slot(nq, -1);
+        std::vector<int> slot(corrPoints.size(), -1);
         for (size_t c = 0; c < want.size(); ++c) slot[want[c]] = (int)c;
         std::vector<std::vector<int> > rowsOf(want.size());
         std::vector<std::vector<double> > valsOf(want.size());
-        for (size_t k = 0; k < (size_t)PtT.nnz; ++k) {
-            const int c = slot[PtT.j[k]];
-            if (c >= 0 && PtT.aij[k] != 0.) { rowsOf[c].push_back(PtT.i[k] + 1); valsOf[c].push_back(PtT.aij[k]); }
+        for (size_t k = 0; k < corrUpRow.size(); ++k) {
+            const int c = slot[corrUpPoint[k]];
+            if (c >= 0) { rowsOf[c].push_back(corrUpRow[k] + 1); valsOf[c].push_back(corrUpVal[k]); }
         }
-        P.CSR();
         for (size_t c0 = 0; c0 < want.size(); c0 += kColumnBlock) {
             const int nb = (int)std::min<size_t>(kColumnBlock, want.size() - c0);
             std::vector<int> ptr(nb + 1, 1), rows;
@@ -285,7 +286,7 @@ struct ContactMumps {
                 std::vector<double> g(nq, 0.);
                 for (int i = 0; i < nq; ++i)
                     for (int k = P.p[i]; k < P.p[i + 1]; ++k) g[i] += P.aij[k] * z[P.j[k]];
-                columnOf[want[c0 + c]] = (int)columns.size();
+                columnOf[corrPoints[want[c0 + c]]] = (int)columns.size();
                 columns.push_back(g);
                 ++columnsSolved;
             }
@@ -299,25 +300,16 @@ struct ContactMumps {
         if (P.m != id.n || PtT.n != id.n || PtT.m != nq || d.N() != nq) return lastInfo = kNotSquare;
         if ((int)columnOf.size() != nq) { columnOf.assign(nq, -1); columns.clear(); }
         dropCorrection();
-        std::vector<int> want;
+        std::vector<int> want;   // positions in corrPoints of the points without a column
         for (int q = 0; q < nq; ++q)
             if (d[q] != 0.) {
+                if (columnOf[q] < 0) want.push_back((int)corrPoints.size());
                 corrPoints.push_back(q);
-                if (columnOf[q] < 0) want.push_back(q);
             }
         if ((long)want.size() > maxNew) { dropCorrection(); return kTooManyColumns; }
-        if (!want.empty() && computeColumns(PtT, P, want) < 0) { dropCorrection(); return lastInfo; }
         int r = (int)corrPoints.size(), info = 0;
         if (r == 0) return 0;
-        corrLu.assign((size_t)r * r, 0.);
-        for (int b = 0; b < r; ++b) {
-            const std::vector<double> &g = columns[columnOf[corrPoints[b]]];
-            for (int a = 0; a < r; ++a) corrLu[a + (size_t)b * r] = g[corrPoints[a]];
-            corrLu[b + (size_t)b * r] += 1. / d[corrPoints[b]];
-        }
-        corrPivots.assign(r, 0);
-        dgetrf_(&r, &r, corrLu.data(), &r, corrPivots.data(), &info);
-        if (info != 0) { dropCorrection(); return kSingularCapacitance; }
+        // P's rows and PtT's columns on the correction's points, in one pass each
         std::vector<int> position(nq, -1);
         for (int a = 0; a < r; ++a) position[corrPoints[a]] = a;
         P.CSR();   // row pointers (no work when P is already in that state)
@@ -331,6 +323,16 @@ struct ContactMumps {
             const int a = position[PtT.j[k]];
             if (a >= 0 && PtT.aij[k] != 0.) { corrUpRow.push_back(PtT.i[k]); corrUpPoint.push_back(a); corrUpVal.push_back(PtT.aij[k]); }
         }
+        if (!want.empty() && computeColumns(P, want) < 0) { dropCorrection(); return lastInfo; }
+        corrLu.assign((size_t)r * r, 0.);
+        for (int b = 0; b < r; ++b) {
+            const std::vector<double> &g = columns[columnOf[corrPoints[b]]];
+            for (int a = 0; a < r; ++a) corrLu[a + (size_t)b * r] = g[corrPoints[a]];
+            corrLu[b + (size_t)b * r] += 1. / d[corrPoints[b]];
+        }
+        corrPivots.assign(r, 0);
+        dgetrf_(&r, &r, corrLu.data(), &r, corrPivots.data(), &info);
+        if (info != 0) { dropCorrection(); return kSingularCapacitance; }
         return (long)want.size();
     }
 };
