@@ -194,7 +194,8 @@ def two_body_solver_schema(floating_body, contact_points):
         "predictor_steps": Field("int", flag="predictor_steps", default=4, check=at_least(0),
                                  doc="at most this many Newton steps of the secant predictor on the active measure (it stops once a trial set is too large)"),
         "refactor_points": Field("int", flag="refactor_points", default=12, check=at_least(0),
-                                 doc="re-use the factorization (GMRES) when fewer points changed"),
+                                 doc="re-use the last factorization (low-rank correction or GMRES) when at most this "
+                                     "many points changed, whatever the budget"),
         "refactor_auto": Field("bool", flag="refactor_auto", default=True,
                                doc="also re-use it when fewer points changed than the solves one "
                                    "factorization costs (from MUMPS's operation count)"),

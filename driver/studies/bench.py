@@ -679,7 +679,7 @@ def bench3d_summary(runs, study="bench-3d"):
             row = dict(version=version, degree=degree, nx=nx, runs=len(runs_v), dofs=int(runs_v.dofs.iloc[0]),
                        newton_iterations=int(runs_v.newton_iterations.iloc[0]),
                        factorizations=int(runs_v.factorizations.iloc[0]),
-                       low_rank_columns=int(runs_v.low_rank_columns.iloc[0]) if "low_rank_columns" in runs_v else 0,
+                       low_rank_columns=int(runs_v.low_rank_columns.iloc[0]),
                        **medians[version].to_dict())
             for what in ("wall_s", "cpu_all_steps", "cpu_estimators", "cpu_assembly", "peak_rss_mb"):
                 row[f"{what}_ratio"] = medians[version][what] / medians[previous][what]
