@@ -37,6 +37,7 @@ REGISTRY = {
     "bench-solver": ("bench", "solver"),
     "bench-3d": ("bench", "bench3d"),
     "bench-3d-large": ("bench", "bench3d_large"),
+    "bench-3d-graded": ("bench", "bench3d_graded"),
     "bench-error-tool": ("bench", "error_tool_bench"),
 }
 

@@ -759,6 +759,42 @@ def bench3d_large():
     return summary
 
 
+# ---- the graded P2 reference of the 3D studies: previous version against current (study bench-3d-graded) ----
+
+# The ball-on-slab reference of fd3d-study (P2 on cube(nx) refined by tetgen toward the
+# contact point, about 294k DOFs), solved with the reference's flags by the previous
+# version and the current tree, in memory and out of core. Long (over an hour for the
+# three), one run each by default.
+BENCH3D_GRADED_REPEATS = int(os.environ.get("BENCH_3D_GRADED_REPEATS", "1"))
+
+
+def graded_reference_flags():
+    """fd3d-study's reference mesh and Newton settings as FreeFEM flags both versions read."""
+    from driver import fd3d as scenes3d
+    from driver.scene import load_scene
+    from driver.studies import fd3d
+
+    scene, _ = load_scene(fd3d.BALL, [])
+    gx, gy, gz = scenes3d.grade_point(scene)
+    return ["-grade_h", repr(fd3d.REFERENCE_GRADE_H), "-grade_radius", repr(fd3d.REFERENCE_GRADE_RADIUS),
+            "-grade_slope", repr(fd3d.REFERENCE_GRADE_SLOPE), "-grade_x", repr(gx), "-grade_y", repr(gy),
+            "-grade_z", repr(gz), "-refactor_points", "300"]
+
+
+def bench3d_graded():
+    """make bench: the graded P2 reference solve, previous version against current."""
+    from driver.studies import fd3d
+
+    flags = graded_reference_flags()
+    versions = {version: (tree, [*flags, *extra]) for version, (tree, extra) in BENCH3D_LARGE_VERSIONS.items()}
+    runs = bench3d_runs([(2, fd3d.REFERENCE_NX)], BENCH3D_GRADED_REPEATS, quiet=SOLVER_QUIET,
+                        prefix="bench-3d-graded-", versions=versions)
+    save_results(bench_3d_graded_runs=runs)
+    summary = save_results(bench_3d_graded=bench3d_summary(runs, study="bench-3d-graded"))
+    print(markdown_table(bench3d_large_table(summary), digits=3))
+    return summary
+
+
 # ---- the 3D error tool against the graded reference (study bench-error-tool) ----
 
 ERROR_TOOL_NX = (8, 12, 16)
