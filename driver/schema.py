@@ -207,6 +207,10 @@ def two_body_solver_schema(floating_body, contact_points):
         "out_of_core": Field("bool", flag="out_of_core", default=False,
                              doc="MUMPS keeps the factors in files of the run's folder instead of memory "
                                  "(deleted when the solve ends): less memory for large 3D runs"),
+        "ordering": Field("str", flag="ordering", default="auto", choices=("auto", "amd", "scotch"),
+                          doc="MUMPS's fill-reducing ordering: auto takes AMD unless its predicted "
+                              "factorization does more than 6000 operations per matrix entry (then Scotch's "
+                              "nested dissection, whose ordering costs more but pays on large 3D systems)"),
         "allow_unbalanced": Field("bool", flag="allow_unbalanced", default=False,
                                   doc=f"keep a run whose pins or mass term carry more than 1e-6 of the "
                                       f"{floating_body}'s load (flagged in results.json 'balance'); refused "

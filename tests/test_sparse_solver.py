@@ -183,3 +183,35 @@ def test_out_of_core_factors_give_the_answer_and_leave_no_file(tmp_path):
     centre = runs[0]["probes"]["centre"][2]
     assert runs[1]["newton"]["factorizations"] == runs[0]["newton"]["factorizations"]
     assert abs(runs[1]["probes"]["centre"][2] - centre) <= 1e-12*abs(centre)
+
+
+def test_automatic_ordering_keeps_amd_on_small_systems_and_takes_scotch_where_it_pays(tmp_path):
+    def solve(script, *flags):
+        out = tmp_path / f"run{len(list(tmp_path.iterdir()))}"
+        proc = run_freefem(script, *flags, "-estimators", 0, "-vtu", 0, "-csv", 0, "-outdir", out)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        return json.loads((out / "results.json").read_text())
+
+    # 2D default scene: AMD predicts about 1250 operations per matrix entry, below 6000
+    auto, scotch = solve("fd_contact_2d.edp"), solve("fd_contact_2d.edp", "-ordering", "scotch")
+    assert auto["newton"]["ordering"] == "amd" and scotch["newton"]["ordering"] == "scotch"
+    assert 1000 <= auto["newton"]["amd_operations_per_entry"] <= 1500
+    assert scotch["newton"]["amd_operations_per_entry"] == 0
+    centre = scotch["probes"]["centre"][1]
+    assert abs(auto["probes"]["centre"][1] - centre) <= 1e-12*abs(centre)
+    # 3D P2 nx = 10: about 7700 per entry with AMD, and Scotch's factors need a third fewer operations
+    auto, amd = solve("fd_contact_3d.edp", "-Ddegree=2", "-nx", 10), solve("fd_contact_3d.edp", "-Ddegree=2",
+                                                                            "-nx", 10, "-ordering", "amd")
+    assert auto["newton"]["ordering"] == "scotch" and amd["newton"]["ordering"] == "amd"
+    assert 6000 < auto["newton"]["amd_operations_per_entry"] <= 9000
+    assert auto["newton"]["factor_operations"] < 0.75*amd["newton"]["factor_operations"]
+    centre = amd["probes"]["centre"][2]
+    assert abs(auto["probes"]["centre"][2] - centre) <= 1e-12*abs(centre)
+
+
+def test_an_unknown_ordering_is_refused(tmp_path):
+    for script in ("fd_contact_2d.edp", "fd_contact_3d.edp"):
+        out = tmp_path / script
+        proc = run_freefem(script, "-nx", 4, "-ordering", "metis", "-outdir", out)
+        assert proc.returncode == 2 and "ordering must be auto, amd or scotch" in proc.stdout + proc.stderr
+        assert not out.exists()

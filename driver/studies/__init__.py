@@ -38,6 +38,7 @@ REGISTRY = {
     "bench-3d": ("bench", "bench3d"),
     "bench-3d-large": ("bench", "bench3d_large"),
     "bench-3d-graded": ("bench", "bench3d_graded"),
+    "bench-ordering": ("bench", "ordering"),
     "bench-error-tool": ("bench", "error_tool_bench"),
 }
 

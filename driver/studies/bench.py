@@ -618,6 +618,86 @@ def solver():
     return summary
 
 
+# ---- the fill-reducing ordering: AMD against Scotch (study bench-ordering) ----
+
+ORDERING_CASES = {   # label -> direct FreeFEM command after the binary (embedded default scenes)
+    **{f"2D disk on slab, P2, NX = {nx}": ["freefem/fd_contact_2d.edp", "-nx", str(nx)] for nx in (40, 80, 160, 320)},
+    **{f"3D ball on slab, P1, nx = {nx}": ["freefem/fd_contact_3d.edp", "-nx", str(nx)] for nx in (10, 20)},
+    **{f"3D ball on slab, P2, nx = {nx}": ["freefem/fd_contact_3d.edp", "-Ddegree=2", "-nx", str(nx)]
+       for nx in (8, 10, 12, 16)},
+}
+ORDERING_REPEATS = int(os.environ.get("BENCH_ORDERING_REPEATS", "3"))
+ORDERINGS = ("amd", "scotch", "auto")
+
+
+def ordering_runs():
+    """Every case with each ordering, in turn within each repeat; estimators and files off."""
+    rows = []
+    total = ORDERING_REPEATS * len(ORDERING_CASES) * len(ORDERINGS)
+    with tempfile.TemporaryDirectory(prefix="bench-ordering-") as tmp:
+        for repeat in range(ORDERING_REPEATS):
+            for case, command in ORDERING_CASES.items():
+                for ordering in ORDERINGS:
+                    progress(len(rows) + 1, total, f"{case}, {ordering}")
+                    folder = Path(tmp) / f"run{len(rows)}"
+                    load = load_average()
+                    wall, cpu, rss = timed_solve(REPO, [*command, "-ordering", ordering], folder)
+                    results = parse_json_file(folder / "results.json")
+                    newton, timings = results["newton"], results["timings_cpu_s"]
+                    rows.append(dict(
+                        case=case, ordering=ordering, repeat=repeat, dofs=results["dofs"],
+                        used=newton["ordering"], amd_operations_per_entry=newton["amd_operations_per_entry"],
+                        factor_operations=newton["factor_operations"], factor_entries=newton["factor_entries"],
+                        newton_iterations=newton["iterations"], factorizations=newton["factorizations"],
+                        centre=results["probes"]["centre"][-1], wall_s=wall, peak_rss_mb=rss,
+                        load_1min_before=load, cpu_newton_factor_solve=timings["newton_factor_solve"],
+                        cpu_mumps_analysis=timings["newton_mumps_analysis"],
+                        cpu_mumps_factorization=timings["newton_mumps_factorization"]))
+                    shutil.rmtree(folder)
+    return pd.DataFrame(rows)
+
+
+def ordering_summary(runs):
+    """Per case: AMD's predicted operations per matrix entry (what the automatic
+    choice reads), both orderings' operations and median CPU seconds of the Newton's
+    factorizations and solves, the ordering the automatic mode took and what it cost
+    against the faster of the two; the answers must agree to round-off."""
+    rows = []
+    for case, group in runs.groupby("case", sort=False):
+        spread = float((group.centre - group.centre.iloc[0]).abs().max() / abs(group.centre.iloc[0]))
+        if spread > 1e-9:
+            raise DriverError(f"bench-ordering: {case}: the orderings' answers differ by {spread:.2e}")
+        med = {o: g.cpu_newton_factor_solve.median() for o, g in group.groupby("ordering")}
+        first = {o: g.iloc[0] for o, g in group.groupby("ordering")}
+        amd, scotch, auto = first["amd"], first["scotch"], first["auto"]
+        rows.append(dict(case=case, dofs=int(amd.dofs), amd_operations_per_entry=auto.amd_operations_per_entry,
+                         amd_operations=amd.factor_operations, scotch_operations=scotch.factor_operations,
+                         scotch_over_amd_operations=scotch.factor_operations / amd.factor_operations,
+                         amd_s=med["amd"], scotch_s=med["scotch"], scotch_over_amd_s=med["scotch"] / med["amd"],
+                         auto_takes=auto.used, auto_s=med["auto"],
+                         auto_over_best=med["auto"] / min(med["amd"], med["scotch"]),
+                         centre_rel_diff=spread))
+    return stamped(rows, runs)
+
+
+def ordering_table(summary):
+    """The docs table of bench_ordering.csv."""
+    columns = {"case": "case", "dofs": "DOFs", "amd_operations_per_entry": "AMD operations / entry",
+               "scotch_over_amd_operations": "operations Scotch / AMD", "amd_s": "AMD s", "scotch_s": "Scotch s",
+               "scotch_over_amd_s": "Scotch / AMD", "auto_takes": "auto takes", "auto_s": "auto s",
+               "auto_over_best": "auto / faster"}
+    return summary[list(columns)].rename(columns=columns)
+
+
+def ordering():
+    """make bench: the Newton's factorizations and solves (CPU seconds, MUMPS's analysis
+    included) with AMD, Scotch and the automatic choice, 2D and 3D."""
+    runs = save_results(bench_ordering_runs=ordering_runs())
+    summary = save_results(bench_ordering=ordering_summary(runs))
+    print(markdown_table(ordering_table(summary), digits=3))
+    return summary
+
+
 # ---- 3D cost by phase: the previous version against the current one (study bench-3d) ----
 
 PHASES_3D = ("geometry", "assembly", "newton_contact_assembly", "newton_factor_solve", "estimators", "output",

@@ -40,20 +40,32 @@
 //       factors to files in dir (MUMPS's out-of-core mode, ICNTL(22) = 1, prefix
 //       mumps_factors), which MUMPS deletes when the instance is released. Returns 0,
 //       or -1006 when dir is longer than MUMPS accepts (255 bytes).
+//   int contactMumpsOrdering(int mode)
+//       the fill-reducing ordering of the next analyses: 0 automatic (below), 1 AMD,
+//       2 nested dissection (Scotch). Returns 0, or -1007 for another mode.
 //   int contactMumpsStats(real[int] s)
-//       s (resized to 13) = analyses, numeric factorizations, solves, entries in the
+//       s (resized to 15) = analyses, numeric factorizations, solves, entries in the
 //       factors (INFOG(29)), operations of the last elimination (RINFOG(3)), the
 //       last factorization's peak memory in MB (INFOG(22)), the size n of the last
 //       matrix, INFOG(1) of the last call, CPU seconds spent in MUMPS's analyses,
 //       numeric factorizations and solves, the low-rank columns computed and their
-//       CPU seconds (counts and seconds: process totals).
+//       CPU seconds (counts and seconds: process totals), the ordering of the last
+//       analysis (MUMPS's INFOG(7): 0 AMD, 3 Scotch), and the operations per matrix
+//       entry AMD predicted in the last automatic choice (0 without one).
 //   int contactMumpsRelease()
 //       frees the instance (the next factorization analyses again).
 //
-// The ordering stays MUMPS's automatic choice (ICNTL(7) = 7), as in MUMPS_seq, so a
-// first factorization matches FreeFEM's own sparsesolver. Debian's Scotch orders on
-// one thread per core unless SCOTCH_PTHREAD_NUMBER says otherwise: the scripts set
-// it to 1 (freefem/lib/core/sparse_solver.idp) for reproducible orderings.
+// The automatic ordering. Nested dissection (Scotch) makes sparser factors than
+// approximate minimum degree (AMD): 15-42 % fewer operations on the contact
+// systems; but it costs about 7 times AMD's ordering time, more than a whole
+// numeric factorization of the 2D default scene (Scotch 0.155 s, factorization
+// 0.13 s at 24k DOFs). The automatic mode analyses with AMD first and keeps it
+// unless AMD's predicted elimination operations per matrix entry (RINFOG(1) / nnz)
+// exceed kNestedDissectionPays, where it analyses again with Scotch. Measured
+// (make bench, bench-ordering: results/bench_ordering.csv) on the disk on slab and
+// the ball on slab. Debian's Scotch orders on one thread per core unless
+// SCOTCH_PTHREAD_NUMBER says otherwise: the scripts set it to 1
+// (freefem/lib/core/sparse_solver.idp) for reproducible orderings.
 //
 // Build: make setup (the Makefile's rule for freefem/plugins/contact_mumps.so,
 // FreeFEM's ff-c++ against Debian's libmumps-seq-dev).
@@ -79,7 +91,10 @@ namespace {
 const int kJobInit = -1, kJobEnd = -2, kJobAnalyse = 1, kJobFactor = 2, kJobSolve = 3;
 const int kHostWorks = 1, kUseCommWorld = -987654;
 const long kNoFactorization = -1000, kNotSquare = -1001, kNoMatrix = -1002, kTooManyColumns = -1004,
-           kSingularCapacitance = -1005, kDirectoryTooLong = -1006;
+           kSingularCapacitance = -1005, kDirectoryTooLong = -1006, kBadOrdering = -1007;
+const int kOrderingAuto = 0, kOrderingAmd = 1, kOrderingNested = 2;
+const int kIcntlAmd = 0, kIcntlScotch = 3;   // ICNTL(7) values
+const double kNestedDissectionPays = 6000;   // AMD's predicted operations per matrix entry (see above)
 const int kColumnBlock = 32;   // right-hand sides per MUMPS solve of the low-rank columns
 
 struct ContactMumps {
@@ -89,6 +104,8 @@ struct ContactMumps {
     std::vector<int> rowsNext, colsNext;   // the pattern being loaded
     std::vector<double> values;
     long analyses = 0, factorizations = 0, solves = 0, lastInfo = 0, columnsSolved = 0;
+    int orderingMode = kOrderingAuto;
+    double amdOperationsPerEntry = 0;   // of the last automatic choice
     double analysisSeconds = 0, factorSeconds = 0, solveSeconds = 0, columnSeconds = 0;   // CPU, MUMPS calls only
 
     // Low-rank correction (contactMumpsLowRank): the kept columns g_q = P Kf^-1 PtT e_q
@@ -183,6 +200,18 @@ struct ContactMumps {
         return same;
     }
 
+    // MUMPS's analysis with the ordering of orderingMode (see the top of the file).
+    long analyse() {
+        icntl(7) = orderingMode == kOrderingNested ? kIcntlScotch : kIcntlAmd;
+        analysisSeconds += call(kJobAnalyse);
+        if (lastInfo < 0 || orderingMode != kOrderingAuto) return lastInfo;
+        amdOperationsPerEntry = id.rinfog[0] / double(id.nnz);
+        if (amdOperationsPerEntry <= kNestedDissectionPays) return lastInfo;
+        icntl(7) = kIcntlScotch;
+        analysisSeconds += call(kJobAnalyse);
+        return lastInfo;
+    }
+
     long factor(HashMatrix<int, double> &A, HashMatrix<int, double> *B, bool reuse) {
         if (A.n != A.m || A.half) return lastInfo = kNotSquare;
         if (B && (B->n != A.n || B->m != A.m || B->half)) return lastInfo = kNotSquare;
@@ -195,7 +224,6 @@ struct ContactMumps {
         id.jcn = jcn.data();
         id.a = values.data();
         icntl(5) = 0;    // assembled matrix
-        icntl(7) = 7;    // automatic ordering
         icntl(18) = 0;   // centralized on the host
         icntl(22) = outOfCoreDir.empty() ? 0 : 1;
         if (!outOfCoreDir.empty()) {
@@ -203,8 +231,7 @@ struct ContactMumps {
             std::strncpy(id.ooc_prefix, "mumps_factors", sizeof(id.ooc_prefix) - 1);
         }
         if (!same || !factorized) {
-            analysisSeconds += call(kJobAnalyse);
-            if (lastInfo < 0) { release(); return lastInfo; }
+            if (analyse() < 0) { release(); return lastInfo; }
             ++analyses;
         }
         factorSeconds += call(kJobFactor);
@@ -375,9 +402,15 @@ long contactMumpsOutOfCore(string *const &dir) {
     return 0;
 }
 
+long contactMumpsOrdering(const long &mode) {
+    if (mode != kOrderingAuto && mode != kOrderingAmd && mode != kOrderingNested) return kBadOrdering;
+    instance().orderingMode = (int)mode;
+    return 0;
+}
+
 long contactMumpsStats(KN<double> *const &s) {
     ContactMumps &m = instance();
-    s->resize(13);
+    s->resize(15);
     (*s)[0] = m.analyses;
     (*s)[1] = m.factorizations;
     (*s)[2] = m.solves;
@@ -391,6 +424,8 @@ long contactMumpsStats(KN<double> *const &s) {
     (*s)[10] = m.solveSeconds;
     (*s)[11] = m.columnsSolved;
     (*s)[12] = m.columnSeconds;
+    (*s)[13] = m.started ? (double)m.infog(7) : -1.;
+    (*s)[14] = m.amdOperationsPerEntry;
     return 0;
 }
 
@@ -419,6 +454,7 @@ static void Load_Init() {
                new OneOperator4_<long, Matrice_Creuse<double> *, Matrice_Creuse<double> *, KN<double> *, long>(
                    contactMumpsLowRank));
     Global.Add("contactMumpsOutOfCore", "(", new OneOperator1_<long, string *>(contactMumpsOutOfCore));
+    Global.Add("contactMumpsOrdering", "(", new OneOperator1_<long, long>(contactMumpsOrdering));
     Global.Add("contactMumpsStats", "(", new OneOperator1_<long, KN<double> *>(contactMumpsStats));
     Global.Add("contactMumpsRelease", "(", new OneOperator0<long>(contactMumpsRelease));
 }
