@@ -115,7 +115,7 @@ hard-study: setup
 # 3D error tool against the graded reference (results/bench_error_tool*.csv).
 .PHONY: bench
 bench: setup
-	$(PYTHON) -m driver study bench-newton bench bench-overhead bench-solver bench-3d bench-3d-large bench-error-tool
+	$(PYTHON) -m driver study bench-newton bench bench-overhead bench-ordering bench-solver bench-3d bench-3d-large bench-3d-graded bench-error-tool
 	$(PYTHON) -m driver readme
 
 # Fictitious-domain ball on slab (3D): P1 (theta = 1, 0, -1) and P2 ladders against a

@@ -56,14 +56,16 @@
 //       frees the instance (the next factorization analyses again).
 //
 // The automatic ordering. Nested dissection (Scotch) makes sparser factors than
-// approximate minimum degree (AMD): 15-42 % fewer operations on the contact
-// systems; but it costs about 7 times AMD's ordering time, more than a whole
-// numeric factorization of the 2D default scene (Scotch 0.155 s, factorization
-// 0.13 s at 24k DOFs). The automatic mode analyses with AMD first and keeps it
-// unless AMD's predicted elimination operations per matrix entry (RINFOG(1) / nnz)
-// exceed kNestedDissectionPays, where it analyses again with Scotch. Measured
-// (make bench, bench-ordering: results/bench_ordering.csv) on the disk on slab and
-// the ball on slab. Debian's Scotch orders on one thread per core unless
+// approximate minimum degree (AMD) on all but the smallest contact systems (0.45 to
+// 0.88 of AMD's operations), but its analysis costs 3 to 7.5 times AMD's, more than
+// the numeric factorization of the 2D default scene (analysis 0.18 s against 0.02 s
+// with AMD, factorization 0.14 s, at 24k DOFs). The automatic mode analyses with AMD
+// first and keeps it unless AMD's predicted elimination operations per matrix entry
+// (RINFOG(1) / nnz) exceed kNestedDissectionPays, where it analyses again with
+// Scotch: AMD is faster up to about 1250 per entry, the two are within 10 % from
+// 2500 to 7700, and Scotch is faster from 8700 on (make bench, bench-ordering:
+// results/bench_ordering.csv, the disk on slab and the ball on slab). Debian's
+// Scotch orders on one thread per core unless
 // SCOTCH_PTHREAD_NUMBER says otherwise: the scripts set it to 1
 // (freefem/lib/core/sparse_solver.idp) for reproducible orderings.
 //
