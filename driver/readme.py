@@ -140,20 +140,22 @@ def bench_targets():
             + f"\n\nMachine: {t.machine.iloc[0]}; load average (1 min) {t.load_average.iloc[0]} the timed runs.")
 
 
-def bench_overhead():
-    from driver.studies.bench import overhead_table
+def stamped_bench_table(name, table):
+    """A make-bench table (results/NAME.csv through the study's `table` function, named
+    in driver.studies.bench) with the machine and the load over its runs."""
+    from driver.studies import bench
 
-    t = pd.read_csv(RESULTS / "bench_overhead.csv")
-    return (markdown_table(overhead_table(t), digits=3)
+    t = pd.read_csv(RESULTS / f"{name}.csv")
+    return (markdown_table(getattr(bench, table)(t), digits=3)
             + f"\n\nMachine: {t.machine.iloc[0]}; load average (1 min) {t.load_1min.iloc[0]} over the runs.")
+
+
+def bench_overhead():
+    return stamped_bench_table("bench_overhead", "overhead_table")
 
 
 def bench_solver():
-    from driver.studies.bench import solver_table
-
-    t = pd.read_csv(RESULTS / "bench_solver.csv")
-    return (markdown_table(solver_table(t), digits=3)
-            + f"\n\nMachine: {t.machine.iloc[0]}; load average (1 min) {t.load_1min.iloc[0]} over the runs.")
+    return stamped_bench_table("bench_solver", "solver_table")
 
 
 def bench_solver_budget():
@@ -164,35 +166,19 @@ def bench_solver_budget():
 
 
 def bench_3d():
-    from driver.studies.bench import bench3d_table
-
-    t = pd.read_csv(RESULTS / "bench_3d.csv")
-    return (markdown_table(bench3d_table(t), digits=3)
-            + f"\n\nMachine: {t.machine.iloc[0]}; load average (1 min) {t.load_1min.iloc[0]} over the runs.")
+    return stamped_bench_table("bench_3d", "bench3d_table")
 
 
 def bench_3d_large():
-    from driver.studies.bench import bench3d_large_table
-
-    t = pd.read_csv(RESULTS / "bench_3d_large.csv")
-    return (markdown_table(bench3d_large_table(t), digits=3)
-            + f"\n\nMachine: {t.machine.iloc[0]}; load average (1 min) {t.load_1min.iloc[0]} over the runs.")
+    return stamped_bench_table("bench_3d_large", "bench3d_large_table")
 
 
 def bench_3d_graded():
-    from driver.studies.bench import bench3d_large_table
-
-    t = pd.read_csv(RESULTS / "bench_3d_graded.csv")
-    return (markdown_table(bench3d_large_table(t), digits=3)
-            + f"\n\nMachine: {t.machine.iloc[0]}; load average (1 min) {t.load_1min.iloc[0]} over the runs.")
+    return stamped_bench_table("bench_3d_graded", "bench3d_large_table")
 
 
 def bench_ordering():
-    from driver.studies.bench import ordering_table
-
-    t = pd.read_csv(RESULTS / "bench_ordering.csv")
-    return (markdown_table(ordering_table(t), digits=3)
-            + f"\n\nMachine: {t.machine.iloc[0]}; load average (1 min) {t.load_1min.iloc[0]} over the runs.")
+    return stamped_bench_table("bench_ordering", "ordering_table")
 
 
 def bench_3d_scaling():
