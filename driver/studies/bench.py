@@ -545,16 +545,22 @@ def solver_runs():
     return pd.DataFrame(rows)
 
 
+def same_answer(values, what):
+    """The relative spread of `values` (one answer, several runs or variants); stops the
+    study when it exceeds round-off (1e-9)."""
+    spread = float((values - values.iloc[0]).abs().max() / abs(values.iloc[0]))
+    if spread > 1e-9:
+        raise DriverError(f"{what} differ by {spread:.2e} (relative)")
+    return spread
+
+
 def solver_summary(runs):
     """Medians per case and variant, ratios to the previous version, and how far the
     variants' answers differ (round-off)."""
     rows = []
     baseline = next(iter(SOLVER_VARIANTS))
     for case, group in runs.groupby("case", sort=False):
-        centres = group.centre_uz
-        spread = float((centres - centres.iloc[0]).abs().max() / abs(centres.iloc[0]))
-        if spread > 1e-9:
-            raise DriverError(f"bench-solver: {case}: the variants' answers differ by {spread:.2e} (relative)")
+        spread = same_answer(group.centre_uz, f"bench-solver: {case}: the variants' answers")
         medians = {}
         for variant, runs_v in group.groupby("variant", sort=False):
             counts = runs_v[["newton_iterations", "factorizations", "analyses", "gmres_iterations",
@@ -664,9 +670,7 @@ def ordering_summary(runs):
     against the faster of the two; the answers must agree to round-off."""
     rows = []
     for case, group in runs.groupby("case", sort=False):
-        spread = float((group.centre - group.centre.iloc[0]).abs().max() / abs(group.centre.iloc[0]))
-        if spread > 1e-9:
-            raise DriverError(f"bench-ordering: {case}: the orderings' answers differ by {spread:.2e}")
+        spread = same_answer(group.centre, f"bench-ordering: {case}: the orderings' answers")
         med = {o: g.cpu_newton_factor_solve.median() for o, g in group.groupby("ordering")}
         first = {o: g.iloc[0] for o, g in group.groupby("ordering")}
         amd, scotch, auto = first["amd"], first["scotch"], first["auto"]
@@ -751,9 +755,7 @@ def bench3d_summary(runs, study="bench-3d"):
         for what in ("centre_uz", "eta"):
             if group[what].isna().all():   # the estimator, when the runs skip it
                 continue
-            spread = float((group[what] - group[what].iloc[0]).abs().max() / abs(group[what].iloc[0]))
-            if spread > 1e-9:
-                raise DriverError(f"{study}: P{degree} nx = {nx}: {what} differs by {spread:.2e} between runs")
+            same_answer(group[what], f"{study}: P{degree} nx = {nx}: the runs' {what}")
         medians = {version: runs_v[quantities].median() for version, runs_v in group.groupby("version")}
         for version, runs_v in group.groupby("version", sort=False):
             row = dict(version=version, degree=degree, nx=nx, runs=len(runs_v), dofs=int(runs_v.dofs.iloc[0]),
@@ -848,17 +850,21 @@ def bench3d_large():
 BENCH3D_GRADED_REPEATS = int(os.environ.get("BENCH_3D_GRADED_REPEATS", "1"))
 
 
+GRADED_FLAGS = ("-grade_h", "-grade_radius", "-grade_slope", "-grade_x", "-grade_y", "-grade_z",
+                "-refactor_points")
+
+
 def graded_reference_flags():
-    """fd3d-study's reference mesh and Newton settings as FreeFEM flags both versions read."""
+    """fd3d-study's reference mesh and Newton settings, as the driver's flags for its scene
+    (driver.fd3d.freefem_args), restricted to those both versions read."""
     from driver import fd3d as scenes3d
     from driver.scene import load_scene
     from driver.studies import fd3d
 
-    scene, _ = load_scene(fd3d.BALL, [])
-    gx, gy, gz = scenes3d.grade_point(scene)
-    return ["-grade_h", repr(fd3d.REFERENCE_GRADE_H), "-grade_radius", repr(fd3d.REFERENCE_GRADE_RADIUS),
-            "-grade_slope", repr(fd3d.REFERENCE_GRADE_SLOPE), "-grade_x", repr(gx), "-grade_y", repr(gy),
-            "-grade_z", repr(gz), "-refactor_points", "300"]
+    scene, _ = load_scene(fd3d.BALL, fd3d.reference_settings())
+    args = scenes3d.freefem_args(scene)
+    pairs = zip(args[1::2], args[2::2])   # after -Ddegree=N: -key value
+    return [item for key, value in pairs if key in GRADED_FLAGS for item in (key, value)]
 
 
 def bench3d_graded():

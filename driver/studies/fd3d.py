@@ -74,15 +74,22 @@ def reference_label(geometry="p1"):
     return label + (", curved geometry" if geometry == "curved" else "")
 
 
+def reference_settings(geometry="p1"):
+    """The reference's scene settings (see REFERENCE_*), on the cut geometry `geometry`."""
+    settings = [f"mesh.nx={REFERENCE_NX}", *REFERENCE_SETTINGS, f"method.geometry={geometry}"]
+    if REFERENCE_GRADE_H > 0:
+        settings += [f"mesh.grade_h={REFERENCE_GRADE_H!r}", f"mesh.grade_radius={REFERENCE_GRADE_RADIUS!r}",
+                     f"mesh.grade_slope={REFERENCE_GRADE_SLOPE!r}"]
+    return settings
+
+
 def reference(geometry="p1"):
     """The P2 reference (see REFERENCE_*) on the cut geometry `geometry` (the P1 one
     keeps its folder name); the centre cut CSV is kept for the figure."""
     name = f"ball_on_slab_p2_nx{REFERENCE_NX}"
-    settings = [f"mesh.nx={REFERENCE_NX}", *REFERENCE_SETTINGS, f"method.geometry={geometry}"]
+    settings = reference_settings(geometry)
     if REFERENCE_GRADE_H > 0:
         name += f"_grade{1 / REFERENCE_GRADE_H:.0f}_r{REFERENCE_GRADE_RADIUS:g}_s{REFERENCE_GRADE_SLOPE:g}"
-        settings += [f"mesh.grade_h={REFERENCE_GRADE_H!r}", f"mesh.grade_radius={REFERENCE_GRADE_RADIUS!r}",
-                     f"mesh.grade_slope={REFERENCE_GRADE_SLOPE!r}"]
     folder = REPO / "runs" / "reference" / (name + geometry_suffix(geometry))
 
     def compute():
