@@ -154,6 +154,10 @@ def bench_overhead():
     return stamped_bench_table("bench_overhead", "overhead_table")
 
 
+def bench_overhead_targets():
+    return stamped_bench_table("bench_overhead_targets", "overhead_targets_table")
+
+
 def bench_solver():
     return stamped_bench_table("bench_solver", "solver_table")
 
@@ -387,6 +391,7 @@ TABLES = {
     "bench_targets": bench_targets,
     "bench_newton": bench_newton,
     "bench_overhead": bench_overhead,
+    "bench_overhead_targets": bench_overhead_targets,
     "bench_solver": bench_solver,
     "bench_solver_budget": bench_solver_budget,
     "bench_3d": bench_3d,
