@@ -7,25 +7,27 @@ SET ?=
 SUDO := $(shell [ "$$(id -u)" -eq 0 ] || echo sudo)
 # libopenblas0-serial: MUMPS links the system BLAS; the reference BLAS is slower
 # (the timings in docs/benchmarks.md were measured with OpenBLAS serial).
-# libfreefem++-dev, libmumps-seq-dev, g++: to build the Newton's MUMPS plugin
-# (freefem/plugins/contact_mumps.cpp).
+# libfreefem++-dev, libmumps-seq-dev, g++: to build the plugins (freefem/plugins:
+# the Newton's MUMPS instance, contact_mumps.cpp; the 2D curved cut cells, curved_cells.cpp).
 DEBIAN_PACKAGES := freefem++ libfreefem++ gmsh libopenblas0-serial libfreefem++-dev libmumps-seq-dev g++
 OPENBLAS := /usr/lib/x86_64-linux-gnu/openblas-serial/libblas.so.3
 export FF_LOADPATH := /usr/lib/freefem++
 
 .PHONY: setup setup-system setup-python case test clean
 
-PLUGIN := freefem/plugins/contact_mumps.so
+PLUGINS := freefem/plugins/contact_mumps.so freefem/plugins/curved_cells.so
+# what each plugin links besides FreeFEM (MUMPS's sequential libraries, LAPACK)
+LIBS_contact_mumps := -I/usr/include/mumps_seq -ldmumps_seq -lmumps_common_seq -lmpiseq_seq -l:liblapack.so.3
+LIBS_curved_cells :=
 
-setup: setup-system setup-python $(PLUGIN)
+setup: setup-system setup-python $(PLUGINS)
 
-# The plugin is rebuilt when its source changes (ff-c++ is FreeFEM's plugin compiler),
+# A plugin is rebuilt when its source changes (ff-c++ is FreeFEM's plugin compiler),
 # in a scratch folder, then moved in place: a run that has the old one loaded keeps it.
-$(PLUGIN): freefem/plugins/contact_mumps.cpp | setup-system
+freefem/plugins/%.so: freefem/plugins/%.cpp | setup-system
 	@echo "building $@"
-	@tmp=$$(mktemp -d) && cp $< $$tmp/ && (cd $$tmp && ff-c++ contact_mumps.cpp -I/usr/include/mumps_seq \
-	    -ldmumps_seq -lmumps_common_seq -lmpiseq_seq -l:liblapack.so.3 > build.log 2>&1) \
-	  && mv $$tmp/contact_mumps.so $@ && rm -rf $$tmp \
+	@tmp=$$(mktemp -d) && cp $< $$tmp/ && (cd $$tmp && ff-c++ $*.cpp $(LIBS_$*) > build.log 2>&1) \
+	  && mv $$tmp/$*.so $@ && rm -rf $$tmp \
 	  || { cat $$tmp/build.log; rm -rf $$tmp; echo "ERROR: could not build $@"; exit 1; }
 
 # FreeFEM's plugins (msh3, iovtk, gmsh, ...) live in libfreefem++, which the
@@ -57,7 +59,7 @@ test: setup
 	$(PYTHON) -m pytest -q tests
 
 clean:
-	rm -rf runs .pytest_cache $(PLUGIN)
+	rm -rf runs .pytest_cache $(PLUGINS)
 
 # Tables and figures of the study pages in docs/ (one target per study; each ends
 # by refilling the generated tables of README.md and docs/*.md: make readme).
