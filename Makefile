@@ -8,17 +8,19 @@ SUDO := $(shell [ "$$(id -u)" -eq 0 ] || echo sudo)
 # libopenblas0-serial: MUMPS links the system BLAS; the reference BLAS is slower
 # (the timings in docs/benchmarks.md were measured with OpenBLAS serial).
 # libfreefem++-dev, libmumps-seq-dev, g++: to build the plugins (freefem/plugins:
-# the Newton's MUMPS instance, contact_mumps.cpp; the 2D curved cut cells, curved_cells.cpp).
+# the Newton's MUMPS instance, contact_mumps.cpp; the 2D curved cut cells,
+# curved_cells.cpp; the recovered contact pressure, pressure_recovery.cpp).
 DEBIAN_PACKAGES := freefem++ libfreefem++ gmsh libopenblas0-serial libfreefem++-dev libmumps-seq-dev g++
 OPENBLAS := /usr/lib/x86_64-linux-gnu/openblas-serial/libblas.so.3
 export FF_LOADPATH := /usr/lib/freefem++
 
 .PHONY: setup setup-system setup-python case test clean
 
-PLUGINS := freefem/plugins/contact_mumps.so freefem/plugins/curved_cells.so
+PLUGINS := freefem/plugins/contact_mumps.so freefem/plugins/curved_cells.so freefem/plugins/pressure_recovery.so
 # what each plugin links besides FreeFEM (MUMPS's sequential libraries, LAPACK)
 LIBS_contact_mumps := -I/usr/include/mumps_seq -ldmumps_seq -lmumps_common_seq -lmpiseq_seq -l:liblapack.so.3
 LIBS_curved_cells :=
+LIBS_pressure_recovery :=
 
 setup: setup-system setup-python $(PLUGINS)
 

@@ -1,0 +1,206 @@
+// pressure_recovery: the recovered contact pressure of freefem/lib/core/pressure_recovery.idp
+// (which states the fit: a weighted least-squares plane of the raw multiplier over
+// the points within a radius), compiled.
+//
+// Why compiled: every point with a pressure nearby reads a window of candidates from
+// the cells around it; on a graded 3D mesh the cells follow the coarsest contact
+// element while the points crowd where the mesh is fine, the windows hold thousands
+// of candidates, and the interpreted loop took most of a run's output stage.
+//
+// Script interface:
+//   int pressureRecoveryFit(int dim, real[int] qx, real[int] qy, real[int] qz,
+//                           real[int] nqx, real[int] nqy, real[int] nqz, real[int] qw,
+//                           real[int] pRaw, real[int] radius, real[int] pRec)
+//   pRec (resized to the number of points) = the recovered pressure at each point;
+//   dim 2 reads qz and nqz but takes the tangent (-ny, nx). Returns the number of
+//   points fitted, -1 when the arrays' sizes differ.
+// The operations are those of the interpreted version in the same order (sequential
+// sums, FreeFEM's heap sort of the distances, x^n through pow): the same values to
+// the bit.
+#include "ff++.hpp"
+#include "HeapSort.hpp"
+
+#include <cmath>
+#include <vector>
+
+namespace {
+
+// FreeFEM's x^n is the C library's pow; the compiler would turn pow(x, 2.) into x*x,
+// which differs from it in the last bit for some x, hence exponents it cannot see.
+volatile double kTwo = 2., kThree = 3.;
+inline double sq(double x) { return pow(x, kTwo); }
+inline double cube(double x) { return pow(x, kThree); }
+
+double sumOf(const std::vector<double> &a) {
+    double s = 0;
+    for (double v : a) s += v;
+    return s;
+}
+
+double dot(const std::vector<double> &a, const std::vector<double> &b) {
+    double s = 0;
+    for (size_t i = 0; i < a.size(); i++) s += a[i] * b[i];
+    return s;
+}
+
+long recover(int dim, const KN_<double> &qx, const KN_<double> &qy, const KN_<double> &qz, const KN_<double> &nqx,
+             const KN_<double> &nqy, const KN_<double> &nqz, const KN_<double> &qw, const KN_<double> &pRaw,
+             const KN_<double> &radius, KN<double> &pRec) {
+    long n = qx.N();
+    pRec.resize(n);
+    pRec = 0.;
+    if (n == 0 || pRaw.max() <= 0) return 0;
+    // cells of at least the largest radius, coarser when there would be more than 4 per point
+    double cell = radius.max();
+    double x0 = qx.min(), y0 = qy.min(), z0 = qz.min();
+    long nx = 1, ny = 1, nz = 1, cells = 0;
+    for (int attempt = 0; attempt < 100; attempt++) {
+        nx = 1 + lround(floor((qx.max() - x0) / cell));
+        ny = 1 + lround(floor((qy.max() - y0) / cell));
+        nz = 1 + lround(floor((qz.max() - z0) / cell));
+        cells = nx * ny * nz;
+        if (cells <= 4 * n + 1000) break;
+        cell *= 1.5;
+    }
+    std::vector<double> key(n), cx(n), cy(n), cz(n);
+    std::vector<long> order(n);
+    for (long i = 0; i < n; i++) {
+        cx[i] = std::min(nx - 1, lround(floor((qx[i] - x0) / cell)));
+        cy[i] = std::min(ny - 1, lround(floor((qy[i] - y0) / cell)));
+        cz[i] = std::min(nz - 1, lround(floor((qz[i] - z0) / cell)));
+        key[i] = cx[i] + nx * (cy[i] + ny * cz[i]);
+        order[i] = i;
+    }
+    HeapSort<double, long>(key.data(), order.data(), n);
+    // the points of cell c are order[start[c] .. start[c + 1] - 1]
+    std::vector<long> start(cells + 1, 0);
+    for (long i = 0; i < n; i++) start[lround(key[i]) + 1]++;
+    for (long c = 0; c < cells; c++) start[c + 1] += start[c];
+    // the box of the points with a pressure, widened by the cell
+    double low[3] = {1e300, 1e300, 1e300}, high[3] = {-1e300, -1e300, -1e300};
+    for (long i = 0; i < n; i++)
+        if (pRaw[i] > 0) {
+            low[0] = std::min(low[0], qx[i]); low[1] = std::min(low[1], qy[i]); low[2] = std::min(low[2], qz[i]);
+            high[0] = std::max(high[0], qx[i]); high[1] = std::max(high[1], qy[i]); high[2] = std::max(high[2], qz[i]);
+        }
+    for (int d = 0; d < 3; d++) { low[d] -= cell; high[d] += cell; }
+    int zSpan = (dim == 3) ? 1 : 0;
+    long fitted = 0;
+    std::vector<long> near;
+    std::vector<double> d2, dx, dy, dz, w, p, s, t, ws, wt;
+    for (long i = 0; i < n; i++) {
+        if (qx[i] < low[0] || qx[i] > high[0] || qy[i] < low[1] || qy[i] > high[1] || qz[i] < low[2]
+            || qz[i] > high[2])
+            continue;
+        // the candidates: the points of the 3 x 3 (x 3) cells around x_i, 3 (9) runs of keys
+        long ix = lround(cx[i]), iy = lround(cy[i]), iz = lround(cz[i]);
+        near.clear();
+        for (long oz = -zSpan; oz <= zSpan; oz++)
+            for (long oy = -1; oy <= 1; oy++) {
+                long jy = iy + oy, jz = iz + oz;
+                if (jy < 0 || jy >= ny || jz < 0 || jz >= nz) continue;
+                long first = start[std::max(ix - 1, 0L) + nx * (jy + ny * jz)];
+                long end = start[std::min(ix + 1, nx - 1) + nx * (jy + ny * jz) + 1];
+                for (long c = first; c < end; c++) near.push_back(order[c]);
+            }
+        // those within the radius: sorted by distance, the first `inside`
+        double r = radius[i];
+        long count = near.size();
+        d2.resize(count);
+        for (long c = 0; c < count; c++) {
+            double ex = qx[near[c]] - qx[i], ey = qy[near[c]] - qy[i], ez = qz[near[c]] - qz[i];
+            d2[c] = ex * ex;
+            d2[c] += ey * ey;
+            d2[c] += ez * ez;
+        }
+        HeapSort<double, long>(d2.data(), near.data(), count);
+        double limit = sq(r) * (1. + 1e-12);
+        long inside = std::lower_bound(d2.begin(), d2.end(), limit) - d2.begin();
+        if (inside == 0) continue;
+        dx.resize(inside); dy.resize(inside); dz.resize(inside); w.resize(inside); p.resize(inside);
+        for (long c = 0; c < inside; c++) {
+            dx[c] = qx[near[c]] - qx[i]; dy[c] = qy[near[c]] - qy[i]; dz[c] = qz[near[c]] - qz[i];
+            w[c] = qw[near[c]]; p[c] = pRaw[near[c]];
+        }
+        // tangents: 2D (-ny, nx); 3D t1 = n x e (e the axis least aligned with n), t2 = n x t1
+        double t1x = -nqy[i], t1y = nqx[i], t1z = 0, t2x = 0, t2y = 0, t2z = 0;
+        if (dim == 3) {
+            if (fabs(nqx[i]) <= fabs(nqy[i]) && fabs(nqx[i]) <= fabs(nqz[i])) {
+                t1x = 0; t1y = nqz[i]; t1z = -nqy[i];
+            } else if (fabs(nqy[i]) <= fabs(nqz[i])) {
+                t1x = -nqz[i]; t1y = 0; t1z = nqx[i];
+            } else {
+                t1x = nqy[i]; t1y = -nqx[i]; t1z = 0;
+            }
+            double norm = sqrt(sq(t1x) + sq(t1y) + sq(t1z));
+            t1x /= norm; t1y /= norm; t1z /= norm;
+            t2x = nqy[i] * t1z - nqz[i] * t1y;
+            t2y = nqz[i] * t1x - nqx[i] * t1z;
+            t2z = nqx[i] * t1y - nqy[i] * t1x;
+        }
+        // the tangential coordinates s, t of the window's points, in units of the radius
+        s.resize(inside); t.resize(inside); ws.resize(inside); wt.resize(inside);
+        for (long c = 0; c < inside; c++) {
+            s[c] = (t1x / r) * dx[c];
+            t[c] = (t2x / r) * dx[c];
+            s[c] += (t1y / r) * dy[c];
+            s[c] += (t1z / r) * dz[c];
+            t[c] += (t2y / r) * dy[c];
+            t[c] += (t2z / r) * dz[c];
+            ws[c] = w[c] * s[c];
+            wt[c] = w[c] * t[c];
+        }
+        // normal equations of the fit
+        double m00 = sumOf(w), m01 = sumOf(ws), m02 = sumOf(wt);
+        double m11 = dot(ws, s), m12 = dot(ws, t), m22 = dot(wt, t);
+        double b0 = dot(w, p), b1 = dot(ws, p), b2 = dot(wt, p);
+        if (m00 <= 0) continue;
+        // the constant term by Cramer's rule; a window whose points do not span the
+        // tangent(s) keeps its weighted mean
+        double a = b0 / m00;
+        if (dim == 3) {
+            double det = m00 * (m11 * m22 - sq(m12)) - m01 * (m01 * m22 - m12 * m02) + m02 * (m01 * m12 - m11 * m02);
+            if (det > 1e-8 * cube(m00))
+                a = (b0 * (m11 * m22 - sq(m12)) - m01 * (b1 * m22 - m12 * b2) + m02 * (b1 * m12 - m11 * b2)) / det;
+        } else {
+            double det = m00 * m11 - sq(m01);
+            if (det > 1e-8 * sq(m00)) a = (b0 * m11 - m01 * b1) / det;
+        }
+        pRec[i] = std::max(a, 0.);
+        fitted++;
+    }
+    return fitted;
+}
+
+class PressureRecoveryFit : public E_F0mps {
+  public:
+    typedef long Result;
+    Expression dim, arrays[10];
+
+    explicit PressureRecoveryFit(const basicAC_F0 &args) {
+        args.SetNameParam();
+        dim = to<long>(args[0]);
+        for (int a = 0; a < 10; a++) arrays[a] = to<KN<double> *>(args[1 + a]);
+    }
+    static ArrayOfaType typeargs() {
+        aType v = atype<KN<double> *>();
+        return ArrayOfaType(atype<long>(), v, v, v, v, v, v, v, v, v, v);
+    }
+    static E_F0 *f(const basicAC_F0 &args) { return new PressureRecoveryFit(args); }
+
+    AnyType operator()(Stack stack) const {
+        long d = GetAny<long>((*dim)(stack));
+        KN<double> *a[10];
+        for (int k = 0; k < 10; k++) a[k] = GetAny<KN<double> *>((*arrays[k])(stack));
+        long n = a[0]->N();
+        for (int k = 0; k < 9; k++)
+            if (a[k]->N() != n) return -1L;
+        return recover(d, *a[0], *a[1], *a[2], *a[3], *a[4], *a[5], *a[6], *a[7], *a[8], *a[9]);
+    }
+};
+
+}  // namespace
+
+static void Load_Init() { Global.Add("pressureRecoveryFit", "(", new OneOperatorCode<PressureRecoveryFit>()); }
+
+LOADFUNC(Load_Init)
