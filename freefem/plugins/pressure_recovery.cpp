@@ -2,10 +2,13 @@
 // (which states the fit: a weighted least-squares plane of the raw multiplier over
 // the points within a radius), compiled.
 //
-// Why compiled: every point with a pressure nearby reads a window of candidates from
-// the cells around it; on a graded 3D mesh the cells follow the coarsest contact
-// element while the points crowd where the mesh is fine, the windows hold thousands
-// of candidates, and the interpreted loop took most of a run's output stage.
+// Why compiled, and with cells of the smallest radius: every point near a pressure
+// reads the points within its radius. The interpreted version found them through
+// cells of the largest radius, which on a graded 3D mesh (fine where the contact is,
+// coarse around it) put most of the contact points in every window: quadratic in
+// the number of points, most of the graded reference's output stage. Here each
+// point reads the cells its own radius reaches, and the window is sorted by
+// distance, then by point number: a fit's sums do not depend on the cells.
 //
 // Script interface:
 //   int pressureRecoveryFit(int dim, real[int] qx, real[int] qy, real[int] qz,
@@ -14,19 +17,17 @@
 //   pRec (resized to the number of points) = the recovered pressure at each point;
 //   dim 2 reads qz and nqz but takes the tangent (-ny, nx). Returns the number of
 //   points fitted, -1 when the arrays' sizes differ.
-// The operations are those of the interpreted version in the same order (sequential
-// sums, FreeFEM's heap sort of the distances, x^n through pow): the same values to
-// the bit.
 #include "ff++.hpp"
-#include "HeapSort.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <utility>
 #include <vector>
 
 namespace {
 
-// FreeFEM's x^n is the C library's pow; the compiler would turn pow(x, 2.) into x*x,
-// which differs from it in the last bit for some x, hence exponents it cannot see.
+// x^n as FreeFEM computes it (the C library's pow; the compiler would turn pow(x, 2.)
+// into x*x, which differs from it in the last bit for some x): exponents it cannot see.
 volatile double kTwo = 2., kThree = 3.;
 inline double sq(double x) { return pow(x, kTwo); }
 inline double cube(double x) { return pow(x, kThree); }
@@ -50,11 +51,12 @@ long recover(int dim, const KN_<double> &qx, const KN_<double> &qy, const KN_<do
     pRec.resize(n);
     pRec = 0.;
     if (n == 0 || pRaw.max() <= 0) return 0;
-    // cells of at least the largest radius, coarser when there would be more than 4 per point
-    double cell = radius.max();
+    // cells of the smallest radius, coarser when there would be more than 4 per point;
+    // a point's window reads the cells within its own radius around its cell
+    double cell = radius.min();
     double x0 = qx.min(), y0 = qy.min(), z0 = qz.min();
     long nx = 1, ny = 1, nz = 1, cells = 0;
-    for (int attempt = 0; attempt < 100; attempt++) {
+    for (int attempt = 0; attempt < 200; attempt++) {
         nx = 1 + lround(floor((qx.max() - x0) / cell));
         ny = 1 + lround(floor((qy.max() - y0) / cell));
         nz = 1 + lround(floor((qz.max() - z0) / cell));
@@ -62,65 +64,60 @@ long recover(int dim, const KN_<double> &qx, const KN_<double> &qy, const KN_<do
         if (cells <= 4 * n + 1000) break;
         cell *= 1.5;
     }
-    std::vector<double> key(n), cx(n), cy(n), cz(n);
-    std::vector<long> order(n);
+    std::vector<long> cx(n), cy(n), cz(n), order(n), start(cells + 1, 0);
     for (long i = 0; i < n; i++) {
         cx[i] = std::min(nx - 1, lround(floor((qx[i] - x0) / cell)));
         cy[i] = std::min(ny - 1, lround(floor((qy[i] - y0) / cell)));
         cz[i] = std::min(nz - 1, lround(floor((qz[i] - z0) / cell)));
-        key[i] = cx[i] + nx * (cy[i] + ny * cz[i]);
-        order[i] = i;
+        start[cx[i] + nx * (cy[i] + ny * cz[i]) + 1]++;
     }
-    HeapSort<double, long>(key.data(), order.data(), n);
-    // the points of cell c are order[start[c] .. start[c + 1] - 1]
-    std::vector<long> start(cells + 1, 0);
-    for (long i = 0; i < n; i++) start[lround(key[i]) + 1]++;
+    // the points of cell c are order[start[c] .. start[c + 1] - 1], by index
     for (long c = 0; c < cells; c++) start[c + 1] += start[c];
-    // the box of the points with a pressure, widened by the cell
+    {
+        std::vector<long> next(start.begin(), start.end() - 1);
+        for (long i = 0; i < n; i++) order[next[cx[i] + nx * (cy[i] + ny * cz[i])]++] = i;
+    }
+    // only points within the largest radius of a point with a pressure can fit one
     double low[3] = {1e300, 1e300, 1e300}, high[3] = {-1e300, -1e300, -1e300};
     for (long i = 0; i < n; i++)
         if (pRaw[i] > 0) {
             low[0] = std::min(low[0], qx[i]); low[1] = std::min(low[1], qy[i]); low[2] = std::min(low[2], qz[i]);
             high[0] = std::max(high[0], qx[i]); high[1] = std::max(high[1], qy[i]); high[2] = std::max(high[2], qz[i]);
         }
-    for (int d = 0; d < 3; d++) { low[d] -= cell; high[d] += cell; }
-    int zSpan = (dim == 3) ? 1 : 0;
+    double reach = radius.max();
+    for (int d = 0; d < 3; d++) { low[d] -= reach; high[d] += reach; }
     long fitted = 0;
-    std::vector<long> near;
-    std::vector<double> d2, dx, dy, dz, w, p, s, t, ws, wt;
+    std::vector<std::pair<double, long>> near;
+    std::vector<double> dx, dy, dz, w, p, s, t, ws, wt;
     for (long i = 0; i < n; i++) {
         if (qx[i] < low[0] || qx[i] > high[0] || qy[i] < low[1] || qy[i] > high[1] || qz[i] < low[2]
             || qz[i] > high[2])
             continue;
-        // the candidates: the points of the 3 x 3 (x 3) cells around x_i, 3 (9) runs of keys
-        long ix = lround(cx[i]), iy = lround(cy[i]), iz = lround(cz[i]);
+        // the points within the radius (cells within ceil(r/cell) of x_i's: a cell index
+        // differs from x_i's by at most that along each axis), by distance, then index
+        double r = radius[i], limit = sq(r) * (1. + 1e-12);
+        long k = std::max(1L, lround(ceil(r / cell)));
+        long kz = (dim == 3) ? k : 0;
         near.clear();
-        for (long oz = -zSpan; oz <= zSpan; oz++)
-            for (long oy = -1; oy <= 1; oy++) {
-                long jy = iy + oy, jz = iz + oz;
-                if (jy < 0 || jy >= ny || jz < 0 || jz >= nz) continue;
-                long first = start[std::max(ix - 1, 0L) + nx * (jy + ny * jz)];
-                long end = start[std::min(ix + 1, nx - 1) + nx * (jy + ny * jz) + 1];
-                for (long c = first; c < end; c++) near.push_back(order[c]);
+        for (long jz = std::max(cz[i] - kz, 0L); jz <= std::min(cz[i] + kz, nz - 1); jz++)
+            for (long jy = std::max(cy[i] - k, 0L); jy <= std::min(cy[i] + k, ny - 1); jy++) {
+                long row = nx * (jy + ny * jz);
+                long first = start[std::max(cx[i] - k, 0L) + row], end = start[std::min(cx[i] + k, nx - 1) + row + 1];
+                for (long c = first; c < end; c++) {
+                    long j = order[c];
+                    double ex = qx[j] - qx[i], ey = qy[j] - qy[i], ez = qz[j] - qz[i];
+                    double d2 = ex * ex + ey * ey + ez * ez;
+                    if (d2 < limit) near.emplace_back(d2, j);
+                }
             }
-        // those within the radius: sorted by distance, the first `inside`
-        double r = radius[i];
-        long count = near.size();
-        d2.resize(count);
-        for (long c = 0; c < count; c++) {
-            double ex = qx[near[c]] - qx[i], ey = qy[near[c]] - qy[i], ez = qz[near[c]] - qz[i];
-            d2[c] = ex * ex;
-            d2[c] += ey * ey;
-            d2[c] += ez * ez;
-        }
-        HeapSort<double, long>(d2.data(), near.data(), count);
-        double limit = sq(r) * (1. + 1e-12);
-        long inside = std::lower_bound(d2.begin(), d2.end(), limit) - d2.begin();
+        std::sort(near.begin(), near.end());
+        long inside = near.size();
         if (inside == 0) continue;
         dx.resize(inside); dy.resize(inside); dz.resize(inside); w.resize(inside); p.resize(inside);
         for (long c = 0; c < inside; c++) {
-            dx[c] = qx[near[c]] - qx[i]; dy[c] = qy[near[c]] - qy[i]; dz[c] = qz[near[c]] - qz[i];
-            w[c] = qw[near[c]]; p[c] = pRaw[near[c]];
+            long j = near[c].second;
+            dx[c] = qx[j] - qx[i]; dy[c] = qy[j] - qy[i]; dz[c] = qz[j] - qz[i];
+            w[c] = qw[j]; p[c] = pRaw[j];
         }
         // tangents: 2D (-ny, nx); 3D t1 = n x e (e the axis least aligned with n), t2 = n x t1
         double t1x = -nqy[i], t1y = nqx[i], t1z = 0, t2x = 0, t2y = 0, t2z = 0;
