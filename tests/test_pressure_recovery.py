@@ -1,0 +1,85 @@
+"""The compiled pressure recovery (freefem/plugins/pressure_recovery.cpp, through
+core/pressure_recovery.idp) against the fit it states, computed here by brute force
+over all pairs of points: on contact points whose radii differ by a factor of eight
+from one point to the next (as on a graded mesh, where the plugin's cells follow the
+smallest radius and each point reads the cells its own radius reaches), in 3D and 2D.
+The closed-form accuracy of the fit is tests/test_outputs.py's."""
+
+import subprocess
+
+import numpy as np
+import pytest
+
+from conftest import REPO
+
+# Points on the lower part of a sphere (3D, a Fibonacci spiral) or a circle (2D),
+# unit normals outward, weights and radii alternating, a Hertz-like pressure on the
+# cap below z (y) = -0.2 with a ripple that the fit averages.
+RECOVERY_SCRIPT = r"""
+include "freefem/lib/core/args.idp"
+include "freefem/lib/core/pressure_recovery.idp"
+int dim = argInt("dim", 3), n = argInt("n", 3000);
+string out = argString("out", "recovery.txt");
+real R = 0.25;
+real[int] qx(n), qy(n), qz(n), nx(n), ny(n), nz(n), qw(n), p(n), rad(n), rec(n);
+for (int i = 0; i < n; i++) {
+    real c, s, z;
+    if (dim == 3) {
+        z = -1. + 0.9*(i + 0.5)/n;            /* lower part of the sphere */
+        real rr = sqrt(1. - z^2), phi = i*pi*(3. - sqrt(5.));
+        nx[i] = rr*cos(phi); ny[i] = rr*sin(phi); nz[i] = z;
+    } else {
+        real t = -pi/2 + 1.4*pi*(i + 0.5)/n - 0.7*pi;
+        nx[i] = cos(t); ny[i] = sin(t); nz[i] = 0;
+    }
+    qx[i] = R*nx[i]; qy[i] = R*ny[i]; qz[i] = R*nz[i];
+    qw[i] = (1. + 0.5*(i % 3))/n;
+    rad[i] = (i % 2 == 0) ? 0.012 : 0.096;
+    real low = (dim == 3) ? qz[i] : qy[i], r2 = (dim == 3) ? qx[i]^2 + qy[i]^2 : qx[i]^2;
+    p[i] = (low < -0.2) ? max(0., 1. - r2/0.12^2)*(1. + 0.1*sin(37.*i)) : 0.;
+}
+pressureRecovery(dim, qx, qy, qz, nx, ny, nz, qw, p, rad, rec)
+ofstream f(out);
+f.precision(17);
+for (int i = 0; i < n; i++)
+    f << qx[i] << " " << qy[i] << " " << qz[i] << " " << nx[i] << " " << ny[i] << " " << nz[i] << " "
+      << qw[i] << " " << p[i] << " " << rad[i] << " " << rec[i] << endl;
+"""
+
+
+def brute_force(dim, x, normal, w, p, radius):
+    """The fit of core/pressure_recovery.idp at every point, over all points within its radius."""
+    rec = np.zeros(len(p))
+    for i in range(len(p)):
+        d = x - x[i]
+        near = np.einsum("ij,ij->i", d, d) < radius[i] ** 2 * (1 + 1e-12)
+        n = normal[i]
+        if dim == 2:
+            tangents = [np.array([-n[1], n[0], 0.0])]
+        else:
+            axis = np.eye(3)[np.argmin(np.abs(n))]
+            t1 = np.cross(n, axis)
+            t1 /= np.linalg.norm(t1)
+            tangents = [t1, np.cross(n, t1)]
+        basis = np.column_stack([np.ones(near.sum())] + [d[near] @ t / radius[i] for t in tangents])
+        m = basis.T @ (w[near][:, None] * basis)
+        b = basis.T @ (w[near] * p[near])
+        a = b[0] / m[0, 0]
+        if np.linalg.det(m) > 1e-8 * m[0, 0] ** (dim):
+            a = np.linalg.solve(m, b)[0]
+        rec[i] = max(a, 0.0)
+    return rec
+
+
+@pytest.mark.parametrize("dim, n", [(3, 3000), (2, 1500)])
+def test_recovery_matches_the_brute_force_fit_on_mixed_radii(tmp_path, dim, n):
+    script, out = tmp_path / "recovery.edp", tmp_path / "recovery.txt"
+    script.write_text(RECOVERY_SCRIPT)
+    proc = subprocess.run(["FreeFem++", "-nw", "-v", "0", str(script), "-dim", str(dim), "-n", str(n),
+                           "-out", str(out)], cwd=REPO, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    data = np.loadtxt(out)
+    x, normal, w, p, radius, rec = data[:, 0:3], data[:, 3:6], data[:, 6], data[:, 7], data[:, 8], data[:, 9]
+    expected = brute_force(dim, x, normal, w, p, radius)
+    assert (p > 0).sum() > 50 and (expected > 0).sum() > 50   # the check has a contact zone
+    assert np.abs(rec - expected).max() <= 1e-12 * p.max()
