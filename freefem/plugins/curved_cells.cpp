@@ -12,16 +12,19 @@
 //                       real phi)
 //   cells: 10 numbers per cut cell: its element number, then x0 x1 x2 y0 y1 y2 of its
 //       vertices and f0 f1 f2, the level set's vertex values (off zero);
-//   rules: [nS, nR, nG], the Gauss points in s and r of the volume map and on the
-//       interface piece (1 to 5 each);
+//   rules: the script's quadrature rules (core/line_rules.idp lsGaussLegendre,
+//       fd2d/levelset.idp lsTriangleRule7), concatenated: nS, nR, nG (the points in s
+//       and r of the volume map and on the interface piece), the nodes and weights of
+//       the three Gauss rules on [0, 1] (ts ws tr wr tg wg), then the barycentric
+//       coordinates a, b and weights w of the 7-point triangle rule;
 //   ratio, inBody: per element of the mesh; set for the cells' elements
 //       (|K cap {phi < 0}|/|K|, at most 1, and 1 where that part is not empty);
 //   volume, interface: resized to 4 n (n points): x of every point, then y, then
 //       weights, then element numbers;
 //   phi: the level set as an expression of x and y (the script's current point),
 //       evaluated at the points the construction asks for.
-//   Returns the number of (sub)cells done on the P1 cut (fallbacks), or -1 for
-//   rules out of range.
+//   Returns the number of (sub)cells done on the P1 cut (fallbacks), or -1 when the
+//   rules or the cells are not laid out as above.
 #include "ff++.hpp"
 
 #include <cmath>
@@ -36,37 +39,6 @@ const int kDepthMax = 2;   // a failing cell is split into four, twice at most
 // see. The rules then equal those of the interpreted construction to the bit.
 volatile double kTwo = 2.;
 inline double sq(double x) { return pow(x, kTwo); }
-
-void gaussLegendre(int n, std::vector<double> &t, std::vector<double> &w) {
-    if (n == 1) {
-        t = {0.5};
-        w = {1.};
-    } else if (n == 2) {
-        t = {0.5 - 0.5 / sqrt(3.), 0.5 + 0.5 / sqrt(3.)};
-        w = {0.5, 0.5};
-    } else if (n == 3) {
-        t = {0.5 - sqrt(15.) / 10., 0.5, 0.5 + sqrt(15.) / 10.};
-        w = {5. / 18., 8. / 18., 5. / 18.};
-    } else if (n == 4) {
-        double a = sqrt(3. / 7. - 2. / 7. * sqrt(6. / 5.)), b = sqrt(3. / 7. + 2. / 7. * sqrt(6. / 5.));
-        double wa = (18. + sqrt(30.)) / 36., wb = (18. - sqrt(30.)) / 36.;
-        t = {0.5 - 0.5 * b, 0.5 - 0.5 * a, 0.5 + 0.5 * a, 0.5 + 0.5 * b};
-        w = {0.5 * wb, 0.5 * wa, 0.5 * wa, 0.5 * wb};
-    } else {
-        double a = sqrt(5. - 2. * sqrt(10. / 7.)) / 3., b = sqrt(5. + 2. * sqrt(10. / 7.)) / 3.;
-        double wa = (322. + 13. * sqrt(70.)) / 900., wb = (322. - 13. * sqrt(70.)) / 900.;
-        t = {0.5 - 0.5 * b, 0.5 - 0.5 * a, 0.5, 0.5 + 0.5 * a, 0.5 + 0.5 * b};
-        w = {0.5 * wb, 0.5 * wa, 0.5 * 128. / 225., 0.5 * wa, 0.5 * wb};
-    }
-}
-
-// The 7-point rule of degree 5 on a triangle (barycentric a, b; weights summing to 1).
-const double kRule7A[7] = {1. / 3., 0.059715871789770, 0.470142064105115, 0.470142064105115,
-                           0.797426985353087, 0.101286507323456, 0.101286507323456};
-const double kRule7B[7] = {1. / 3., 0.470142064105115, 0.059715871789770, 0.470142064105115,
-                           0.101286507323456, 0.797426985353087, 0.101286507323456};
-const double kRule7W[7] = {0.225, 0.132394152788506, 0.132394152788506, 0.132394152788506,
-                           0.125939180544827, 0.125939180544827, 0.125939180544827};
 
 struct Points {
     std::vector<double> x, y, w, k;
@@ -148,9 +120,21 @@ double exitParameter(double ox, double oy, double ax, double ay, double bx, doub
     return lamMax;
 }
 
+// The script's rules: pointers into its concatenated array (see the interface above).
 struct Rules {
     int nS, nR, nG;
-    std::vector<double> ts, ws, tr, wr, tg, wg;
+    const double *ts, *ws, *tr, *wr, *tg, *wg, *a7, *b7, *w7;
+
+    // false when `all` does not hold the layout of the interface above
+    bool read(const KN<double> &all) {
+        if (all.N() < 3) return false;
+        nS = lround(all[0]); nR = lround(all[1]); nG = lround(all[2]);
+        if (std::min(nS, std::min(nR, nG)) < 1 || all.N() != 3 + 2 * (nS + nR + nG) + 21) return false;
+        const double *at = &all[0] + 3;
+        ts = at; ws = (at += nS); tr = (at += nS); wr = (at += nR); tg = (at += nR); wg = (at += nG);
+        a7 = (at += nG); b7 = at + 7; w7 = at + 14;
+        return true;
+    }
 };
 
 // The odd vertex o of a cut (sub)triangle and the P1 crossings ta, tb on o-a and o-b
@@ -164,10 +148,10 @@ void crossing(const double *f, int nNeg, int &o, int &a, int &b, double &ta, dou
     tb = f[o] / (f[o] - f[b]);
 }
 
-void wholeTriangle(const double *X, const double *Y, double area, double k, Points &vol) {
+void wholeTriangle(const Rules &q, const double *X, const double *Y, double area, double k, Points &vol) {
     for (int g = 0; g < 7; g++) {
-        double l1 = kRule7A[g], l2 = kRule7B[g], l0 = 1. - l1 - l2;
-        vol.add(l0 * X[0] + l1 * X[1] + l2 * X[2], l0 * Y[0] + l1 * Y[1] + l2 * Y[2], area * kRule7W[g], k);
+        double l1 = q.a7[g], l2 = q.b7[g], l0 = 1. - l1 - l2;
+        vol.add(l0 * X[0] + l1 * X[1] + l2 * X[2], l0 * Y[0] + l1 * Y[1] + l2 * Y[2], area * q.w7[g], k);
     }
 }
 
@@ -253,8 +237,8 @@ struct SubCell {
 
 // The inside part of one cut element and its interface: the cell and, where it fails,
 // its four children (edge midpoints), down to kDepthMax; what still fails there is
-// done on its P1 cut (counted in fallbacks).
-void cutCell(const LevelSet &phi, const Rules &q, const double *cell, Points &vol, Points &itf, long &fallbacks) {
+// done on its P1 cut (counted in fallbacks). Returns the element's area.
+double cutCell(const LevelSet &phi, const Rules &q, const double *cell, Points &vol, Points &itf, long &fallbacks) {
     double k = cell[0];
     const double *x = cell + 1, *y = cell + 4, *f = cell + 7;
     double areaK = 0.5 * fabs((x[1] - x[0]) * (y[2] - y[0]) - (x[2] - x[0]) * (y[1] - y[0]));
@@ -282,7 +266,7 @@ void cutCell(const LevelSet &phi, const Rules &q, const double *cell, Points &vo
         double subArea = 0.5 * fabs((X[1] - X[0]) * (Y[2] - Y[0]) - (X[2] - X[0]) * (Y[1] - Y[0]));
         bool done = false;
         if (!anomaly && nNeg == 0) done = true;
-        if (!anomaly && nNeg == 3) { wholeTriangle(X, Y, subArea, k, vol); done = true; }
+        if (!anomaly && nNeg == 3) { wholeTriangle(q, X, Y, subArea, k, vol); done = true; }
         if (!anomaly && (nNeg == 1 || nNeg == 2)) {
             done = ruledMap(phi, q, X, Y, F, nNeg, subArea, step, true, k, vol, itf);
             if (!done && c.depth >= kDepthMax) {
@@ -304,9 +288,10 @@ void cutCell(const LevelSet &phi, const Rules &q, const double *cell, Points &vo
             }
         } else if (nNeg == 3) {   // deepest level, edge anomaly left: taken whole (P1)
             fallbacks++;
-            wholeTriangle(X, Y, subArea, k, vol);
+            wholeTriangle(q, X, Y, subArea, k, vol);
         } else if (nNeg == 0) fallbacks++;   // deepest level, edge anomaly left: taken empty (P1)
     }
+    return areaK;
 }
 
 class CurvedCellRules : public E_F0mps {
@@ -332,18 +317,13 @@ class CurvedCellRules : public E_F0mps {
 
     AnyType operator()(Stack stack) const {
         KN<double> &cellData = *GetAny<KN<double> *>((*cells)(stack));
-        KN<double> &ruleSizes = *GetAny<KN<double> *>((*rules)(stack));
+        KN<double> &ruleData = *GetAny<KN<double> *>((*rules)(stack));
         KN<double> &ratioK = *GetAny<KN<double> *>((*ratio)(stack));
         KN<double> &inBodyK = *GetAny<KN<double> *>((*inBody)(stack));
         KN<double> &volumeOut = *GetAny<KN<double> *>((*volume)(stack));
         KN<double> &interfaceOut = *GetAny<KN<double> *>((*interface)(stack));
-        if (ruleSizes.N() != 3 || cellData.N() % 10 != 0) return -1L;
         Rules q;
-        q.nS = lround(ruleSizes[0]); q.nR = lround(ruleSizes[1]); q.nG = lround(ruleSizes[2]);
-        if (std::min(q.nS, std::min(q.nR, q.nG)) < 1 || std::max(q.nS, std::max(q.nR, q.nG)) > 5) return -1L;
-        gaussLegendre(q.nS, q.ts, q.ws);
-        gaussLegendre(q.nR, q.tr, q.wr);
-        gaussLegendre(q.nG, q.tg, q.wg);
+        if (!q.read(ruleData) || cellData.N() % 10 != 0) return -1L;
         MeshPoint *mp = MeshPointStack(stack), saved = *mp;
         LevelSet levelSet(stack, phi);
         Points vol, itf;
@@ -352,9 +332,7 @@ class CurvedCellRules : public E_F0mps {
         for (long c = 0; c < nCells; c++) {
             const double *cell = &cellData[10 * c];
             size_t nv0 = vol.size();
-            cutCell(levelSet, q, cell, vol, itf, fallbacks);
-            const double *X = cell + 1, *Y = cell + 4;
-            double areaK = 0.5 * fabs((X[1] - X[0]) * (Y[2] - Y[0]) - (X[2] - X[0]) * (Y[1] - Y[0]));
+            double areaK = cutCell(levelSet, q, cell, vol, itf, fallbacks);
             double area = 0;
             for (size_t v = nv0; v < vol.size(); v++) area += vol.w[v];
             long k = lround(cell[0]);
