@@ -16,7 +16,7 @@
 //                           real[int] pRaw, real[int] radius, real[int] pRec)
 //   pRec (resized to the number of points) = the recovered pressure at each point;
 //   dim 2 reads qz and nqz but takes the tangent (-ny, nx). Returns the number of
-//   points fitted, -1 when the arrays' sizes differ.
+//   points fitted, -1 when the arrays' sizes differ or a radius is not positive.
 #include "ff++.hpp"
 
 #include <algorithm>
@@ -51,6 +51,7 @@ long recover(int dim, const KN_<double> &qx, const KN_<double> &qy, const KN_<do
     pRec.resize(n);
     pRec = 0.;
     if (n == 0 || pRaw.max() <= 0) return 0;
+    if (!(radius.min() > 0)) return -1;
     // cells of the smallest radius, coarser when there would be more than 4 per point;
     // a point's window reads the cells within its own radius around its cell
     double cell = radius.min();
