@@ -10,6 +10,7 @@ Scene reference: docs/scenes.md is written whole from the schemas of the driver
 accepts; tests/test_docs.py checks that the committed file is current.
 """
 
+import functools
 import re
 
 import pandas as pd
@@ -140,26 +141,29 @@ def bench_targets():
             + f"\n\nMachine: {t.machine.iloc[0]}; load average (1 min) {t.load_average.iloc[0]} the timed runs.")
 
 
-def stamped_bench_table(name, table):
-    """A make-bench table (results/NAME.csv through the study's `table` function, named
-    in driver.studies.bench) with the machine and the load over its runs."""
+def machine_stamp(t):
+    """The line under a make-bench table: the machine and the load over its runs."""
+    return f"\n\nMachine: {t.machine.iloc[0]}; load average (1 min) {t.load_1min.iloc[0]} over the runs."
+
+
+# make-bench tables made from results/NAME.csv by a table function of driver.studies.bench
+STAMPED_BENCH_TABLES = {
+    "bench_overhead": "overhead_table",
+    "bench_overhead_targets": "overhead_targets_table",
+    "bench_solver": "solver_table",
+    "bench_3d": "bench3d_table",
+    "bench_3d_large": "bench3d_large_table",
+    "bench_3d_graded": "bench3d_large_table",
+    "bench_ordering": "ordering_table",
+}
+
+
+def stamped_bench_table(name):
+    """The make-bench table `name` (STAMPED_BENCH_TABLES) with its machine stamp."""
     from driver.studies import bench
 
     t = pd.read_csv(RESULTS / f"{name}.csv")
-    return (markdown_table(getattr(bench, table)(t), digits=3)
-            + f"\n\nMachine: {t.machine.iloc[0]}; load average (1 min) {t.load_1min.iloc[0]} over the runs.")
-
-
-def bench_overhead():
-    return stamped_bench_table("bench_overhead", "overhead_table")
-
-
-def bench_overhead_targets():
-    return stamped_bench_table("bench_overhead_targets", "overhead_targets_table")
-
-
-def bench_solver():
-    return stamped_bench_table("bench_solver", "solver_table")
+    return markdown_table(getattr(bench, STAMPED_BENCH_TABLES[name])(t), digits=3) + machine_stamp(t)
 
 
 def bench_solver_budget():
@@ -167,22 +171,6 @@ def bench_solver_budget():
     return markdown_table(t[["case", "factor_operations", "factor_entries", "sqrt_operations_per_entry",
                              "factorization_s", "solve_s", "time_ratio", "time_ratio_over_sqrt",
                              "refactor_budget", "low_rank_columns", "column_s", "solves_per_column"]], digits=3)
-
-
-def bench_3d():
-    return stamped_bench_table("bench_3d", "bench3d_table")
-
-
-def bench_3d_large():
-    return stamped_bench_table("bench_3d_large", "bench3d_large_table")
-
-
-def bench_3d_graded():
-    return stamped_bench_table("bench_3d_graded", "bench3d_large_table")
-
-
-def bench_ordering():
-    return stamped_bench_table("bench_ordering", "ordering_table")
 
 
 def bench_3d_scaling():
@@ -193,7 +181,7 @@ def bench_error_tool():
     t = pd.read_csv(RESULTS / "bench_error_tool.csv")
     return (markdown_table(t[["version", "nx", "runs", "wall_s", "wall_s_ratio", "cpu_s", "peak_rss_mb", "errors_rel_diff",
                               "l2_rel_body1", "h1_rel_body1", "l2_rel_body2", "h1_rel_body2"]], digits=3)
-            + f"\n\nMachine: {t.machine.iloc[0]}; load average (1 min) {t.load_1min.iloc[0]} over the runs.")
+            + machine_stamp(t))
 
 
 def bench_mumps():
@@ -381,6 +369,7 @@ def curved_cost():
     return markdown_table(pd.read_csv(RESULTS / "curved_cost.csv"), digits=3)
 
 TABLES = {
+    **{name: functools.partial(stamped_bench_table, name) for name in STAMPED_BENCH_TABLES},
     "hertz": hertz,
     "scenes": scenes_table,
     "hard_cases": hard_cases,
@@ -390,15 +379,8 @@ TABLES = {
     "bench_scaling": bench_scaling,
     "bench_targets": bench_targets,
     "bench_newton": bench_newton,
-    "bench_overhead": bench_overhead,
-    "bench_overhead_targets": bench_overhead_targets,
-    "bench_solver": bench_solver,
     "bench_solver_budget": bench_solver_budget,
-    "bench_3d": bench_3d,
     "bench_3d_scaling": bench_3d_scaling,
-    "bench_3d_large": bench_3d_large,
-    "bench_3d_graded": bench_3d_graded,
-    "bench_ordering": bench_ordering,
     "bench_error_tool": bench_error_tool,
     "bench_mumps": bench_mumps,
     "bench_first_active_set": bench_first_active_set,
