@@ -320,8 +320,8 @@ def overhead_commands(folder, trees):
     it writes, or None) for each command timed, the current tree's first."""
     python = sys.executable
     commands = [("current", "python3 -c pass (interpreter start)", [python, "-c", "pass"], REPO, None)]
-    for version in ("current", "baseline"):
-        tree, out = trees[version], folder / version
+    for version, tree in (("current", trees["current"]), (OVERHEAD_BASELINE, trees["baseline"])):
+        out = folder / version
         commands += [
             (version, SETUP_LABEL, ["make", "-s", "setup", f"PYTHON={python}"], tree, None),
             (version, DRIVER_LABEL, [python, "-m", "driver", "run", str(DISK.relative_to(REPO)),
@@ -358,7 +358,6 @@ def overhead_runs():
                                **{f"cpu_{p}": timings.get(p) for p in OVERHEAD_PHASES})
                 rows.append(row)
     runs = pd.DataFrame(rows)
-    runs["version"] = runs.version.replace("baseline", OVERHEAD_BASELINE)
     for version, solved in runs.dropna(subset=["dofs"]).groupby("version"):
         if solved[["dofs", "newton_iterations"]].nunique().max() > 1:
             raise DriverError(f"bench-overhead: the driver's run and the direct FreeFEM run of {version} solved "
