@@ -119,7 +119,7 @@ def test_a_killed_worker_loses_no_row_and_its_point_is_retried(tmp_path):
         proc.kill()
     assert proc.returncode == 0, err
     table = read_table(tmp_path, "kill")
-    assert len(table) == 5 and (table.status == "converged").all(), table[["status", "message"]]
+    assert len(table) == 5 and (table.status == "converged").all(), table[["status", "message"]].to_dict("records")
     after = row_files(tmp_path)
     assert all(after[h] == text for h, text in before.items())      # no finished row lost or rewritten
     counts = Counter(a[0] for a in attempts(tmp_path))
