@@ -285,20 +285,28 @@ def user_environment():
     return env
 
 
-def timed_process(command, env, what, cwd=REPO):
-    """Wall seconds and CPU seconds (user + system of the process and of the children
-    it waited for, FreeFEM under the driver included) of one command."""
+def timed_run(command, env, cwd, failure):
+    """Wall seconds, CPU seconds (user + system of the process and of the children it
+    waited for, FreeFEM under the driver included) and peak resident memory (MB) of
+    one command; a non-zero exit raises DriverError with `failure` and the end of
+    its stderr."""
     start = time.perf_counter()
     proc = subprocess.Popen(command, cwd=cwd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             text=True, errors="replace")
     err = proc.stderr.read()
     _, status, usage = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - start
-    proc.returncode = os.waitstatus_to_exitcode(status)
     proc.stderr.close()
-    if proc.returncode != 0:
-        raise DriverError(f"bench-overhead: {what} failed (exit {proc.returncode}): {err.strip()[-500:]}")
-    return wall, usage.ru_utime + usage.ru_stime
+    code = os.waitstatus_to_exitcode(status)
+    if code != 0:
+        raise DriverError(f"{failure} (exit {code}): {err.strip()[-500:]}")
+    return wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024
+
+
+def timed_process(command, env, what, cwd=REPO):
+    """Wall and CPU seconds of one command of bench-overhead."""
+    wall, cpu, _ = timed_run(command, env, cwd, f"bench-overhead: {what} failed")
+    return wall, cpu
 
 
 # The version make case's speed targets were set against: the tree before the first
@@ -537,17 +545,8 @@ def timed_solve(tree, command, folder, quiet=SOLVER_QUIET):
 def timed_freefem(tree, command):
     """Wall seconds, CPU seconds and peak resident memory (MB) of one FreeFEM process
     run from the repository tree `tree`."""
-    start = time.perf_counter()
-    proc = subprocess.Popen([freefem_binary(), "-nw", "-v", "0", *command],
-                            cwd=tree, env=freefem_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            text=True, errors="replace")
-    err = proc.stderr.read()
-    _, status, usage = os.wait4(proc.pid, 0)
-    wall = time.perf_counter() - start
-    proc.stderr.close()
-    if os.waitstatus_to_exitcode(status) != 0:
-        raise DriverError(f"bench: {' '.join(command)} in {tree} failed: {err.strip()[-500:]}")
-    return wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024
+    return timed_run([freefem_binary(), "-nw", "-v", "0", *command], freefem_env(), tree,
+                     f"bench: {' '.join(command)} in {tree} failed")
 
 
 @contextlib.contextmanager
