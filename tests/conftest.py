@@ -22,8 +22,10 @@ def run_cli(*args, cwd=REPO):
 
 
 def run_freefem(script, *args):
-    """FreeFem++ -nw on a script of freefem/ from the repository root (never raises)."""
-    return subprocess.run(["FreeFem++", "-nw", "-v", "0", f"freefem/{script}", *map(str, args)],
+    """FreeFem++ -nw from the repository root (never raises) on a script of freefem/
+    (its name there) or on a test's own script (a Path)."""
+    target = str(script) if isinstance(script, Path) else f"freefem/{script}"
+    return subprocess.run(["FreeFem++", "-nw", "-v", "0", target, *map(str, args)],
                           cwd=REPO, capture_output=True, text=True)
 
 

@@ -3,7 +3,6 @@ kept, nothing away from a body) and the recovered contact pressure (on closed-fo
 pressures, and in a run's CSV and results.json)."""
 
 import json
-import subprocess
 
 import meshio
 import numpy as np
@@ -76,7 +75,7 @@ for (int i = 0; i < n; i++) {{
     out << ux(px, py) << " " << uy(px, py) << endl;
 }}
 """)
-    proc = subprocess.run(["FreeFem++", "-nw", "-v", "0", str(script)], cwd=REPO, capture_output=True, text=True)
+    proc = run_freefem(script)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     exact = np.loadtxt(tmp_path / "values.txt")
     scale = np.abs(exact).max()

@@ -5,12 +5,10 @@ from one point to the next (as on a graded mesh, where the plugin's cells follow
 smallest radius and each point reads the cells its own radius reaches), in 3D and 2D.
 The closed-form accuracy of the fit is tests/test_outputs.py's."""
 
-import subprocess
-
 import numpy as np
 import pytest
 
-from conftest import REPO
+from conftest import run_freefem
 
 # Points on the lower part of a sphere (3D, a Fibonacci spiral) or a circle (2D),
 # unit normals outward, weights and radii alternating, a Hertz-like pressure on the
@@ -75,8 +73,7 @@ def brute_force(dim, x, normal, w, p, radius):
 def test_recovery_matches_the_brute_force_fit_on_mixed_radii(tmp_path, dim, n):
     script, out = tmp_path / "recovery.edp", tmp_path / "recovery.txt"
     script.write_text(RECOVERY_SCRIPT)
-    proc = subprocess.run(["FreeFem++", "-nw", "-v", "0", str(script), "-dim", str(dim), "-n", str(n),
-                           "-out", str(out)], cwd=REPO, capture_output=True, text=True)
+    proc = run_freefem(script, "-dim", dim, "-n", n, "-out", out)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     data = np.loadtxt(out)
     x, normal, w, p, radius, rec = data[:, 0:3], data[:, 3:6], data[:, 6], data[:, 7], data[:, 8], data[:, 9]

@@ -5,9 +5,8 @@ solver options on whole runs of the disk on slab (P2, NX = 80, a few seconds eac
 
 import json
 import re
-import subprocess
 
-from conftest import REPO, run_freefem
+from conftest import run_freefem
 
 PLUGIN_CHECK = r"""
 load "freefem/plugins/contact_mumps"
@@ -103,7 +102,7 @@ cout << "LOW_RANK_STATS " << s[11] << endl;
 def plugin_lines(tmp_path):
     script = tmp_path / "plugin_check.edp"
     script.write_text(PLUGIN_CHECK)
-    proc = subprocess.run(["FreeFem++", "-nw", "-v", "0", str(script)], cwd=REPO, capture_output=True, text=True)
+    proc = run_freefem(script)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     return {m.group(1): m.group(2).split() for m in re.finditer(r"^([A-Z_]+) (.*)$", proc.stdout, re.M)}
 
