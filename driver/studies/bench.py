@@ -303,12 +303,6 @@ def timed_run(command, env, cwd, failure):
     return wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024
 
 
-def timed_process(command, env, what, cwd=REPO):
-    """Wall and CPU seconds of one command of bench-overhead."""
-    wall, cpu, _ = timed_run(command, env, cwd, f"bench-overhead: {what} failed")
-    return wall, cpu
-
-
 # The version make case's speed targets were set against: the tree before the first
 # change made for them, where make case took 4.7 s and its FreeFEM run 2.3 s on the
 # machine they were measured on (its default scene used the P1 cut geometry). Timed
@@ -355,7 +349,7 @@ def overhead_runs():
                     if out.name == "direct":
                         out.mkdir()
                 load = load_average()
-                wall, cpu = timed_process(command, env, f"{label} ({version})", cwd=tree)
+                wall, cpu, _ = timed_run(command, env, tree, f"bench-overhead: {label} ({version}) failed")
                 row = dict(version=version, command=label, repeat=repeat, wall_s=wall, cpu_s=cpu,
                            load_1min_before=load)
                 if out is not None:

@@ -102,10 +102,10 @@ const int kColumnBlock = 32;   // right-hand sides per MUMPS solve of the low-ra
 // Puts M's entries in row order, columns increasing within a row, and marks M sorted,
 // so that M.CSR() only builds its row pointers: the state and the arrays are those
 // CSR()'s own sort leaves ((row, column) pairs are unique: one such order), so
-// FreeFEM's later products with M sum in the same order. CSR() sorts with a heap
-// sort, 0.058 s of the 2D default scene's 541k entries of A0 (more than MUMPS's
-// numeric factorization of it); this is a counting sort on rows and a sort of each
-// row's few columns.
+// FreeFEM's later products with M sum in the same order. CSR() sorts all entries
+// with a heap sort, O(nnz log nnz) with scattered memory accesses, which on the
+// Newton matrices costs about as much as MUMPS's numeric factorization; this is a
+// counting sort on rows and a sort of each row's few columns, O(nnz).
 static void sortByRows(HashMatrix<int, double> &M) {
     typedef HashMatrix<int, double> HM;
     if (M.state == HM::sorted_ij) return;
