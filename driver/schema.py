@@ -96,6 +96,12 @@ def at_least(bound):
     return described(f">= {bound:g}")(lambda value: None if value >= bound else f"must be >= {bound}")
 
 
+def between(lo, hi):
+    """lo <= value <= hi."""
+    return described(f"[{lo:g}, {hi:g}]")(
+        lambda value: None if lo <= value <= hi else f"must lie in [{lo}, {hi}]")
+
+
 def open_interval(lo, hi, description=None):
     """lo < value < hi; description overrides the printed range (e.g. "(0, 1]" for a bound padded by round-off)."""
     return described(description or f"({lo:g}, {hi:g})")(
@@ -207,6 +213,10 @@ def two_body_solver_schema(floating_body, contact_points):
         "out_of_core": Field("bool", flag="out_of_core", default=False,
                              doc="MUMPS keeps the factors in files of the run's folder instead of memory "
                                  "(deleted when the solve ends): less memory for large 3D runs"),
+        "threads": Field("int", flag="threads", default=1, check=between(1, 256),
+                         doc="BLAS threads of MUMPS's dense kernels: more pay on large 3D runs; the last "
+                             "digits of the results then differ from a one-thread run (the same from run to "
+                             "run), and the CPU timings in results.json add up all threads"),
         "ordering": Field("str", flag="ordering", default="auto", choices=("auto", "amd", "scotch"),
                           doc="MUMPS's fill-reducing ordering: auto takes AMD unless its predicted "
                               "factorization does more than 6000 operations per matrix entry (then Scotch's "

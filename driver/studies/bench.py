@@ -893,9 +893,15 @@ def bench3d_large():
 
 # The ball-on-slab reference of fd3d-study (P2 on cube(nx) refined by tetgen toward the
 # contact point, about 294k DOFs), solved with the reference's flags by the previous
-# version and the current tree, in memory and out of core. Long (over an hour for the
-# three), one run each by default.
+# version and the current tree, in memory and out of core, on one BLAS thread and on
+# two. Long (about 45 minutes for the five), one run each by default.
 BENCH3D_GRADED_REPEATS = int(os.environ.get("BENCH_3D_GRADED_REPEATS", "1"))
+# As the large solve, and with two BLAS threads under MUMPS (the machines the
+# benchmarks run on have two cores), in memory and out of core.
+BENCH3D_GRADED_VERSIONS = {**BENCH3D_LARGE_VERSIONS,
+                           "current, 2 BLAS threads": ("current", ["-threads", "2"]),
+                           "current, factors out of core, 2 BLAS threads":
+                               ("current", ["-out_of_core", "1", "-threads", "2"])}
 
 
 GRADED_FLAGS = ("-grade_h", "-grade_radius", "-grade_slope", "-grade_x", "-grade_y", "-grade_z",
@@ -920,7 +926,7 @@ def bench3d_graded():
     from driver.studies import fd3d
 
     flags = graded_reference_flags()
-    versions = {version: (tree, [*flags, *extra]) for version, (tree, extra) in BENCH3D_LARGE_VERSIONS.items()}
+    versions = {version: (tree, [*flags, *extra]) for version, (tree, extra) in BENCH3D_GRADED_VERSIONS.items()}
     runs = bench3d_runs([(2, fd3d.REFERENCE_NX)], BENCH3D_GRADED_REPEATS, quiet=SOLVER_QUIET,
                         prefix="bench-3d-graded-", versions=versions)
     save_results(bench_3d_graded_runs=runs)

@@ -43,6 +43,11 @@
 //   int contactMumpsOrdering(int mode)
 //       the fill-reducing ordering of the next analyses: 0 automatic (below), 1 AMD,
 //       2 nested dissection (Scotch). Returns 0, or -1007 for another mode.
+//   int contactMumpsThreads(int n)
+//       the threads of the BLAS under MUMPS's dense kernels (OpenBLAS's
+//       openblas_set_num_threads, process-wide): n >= 1. Returns the count in force
+//       afterwards (1 with Debian's serial OpenBLAS, whatever n), or -1008 when n < 1
+//       or the BLAS loaded is not OpenBLAS.
 //   int contactMumpsStats(real[int] s)
 //       s (resized to 15) = analyses, numeric factorizations, solves, entries in the
 //       factors (INFOG(29)), operations of the last elimination (RINFOG(3)), the
@@ -78,6 +83,7 @@
 #include <algorithm>
 #include <cstring>
 #include <string>
+#include <dlfcn.h>
 #include "ff++.hpp"
 #include "AFunction_ext.hpp"
 #include "mumps_seq/mpi.h"
@@ -93,7 +99,8 @@ namespace {
 const int kJobInit = -1, kJobEnd = -2, kJobAnalyse = 1, kJobFactor = 2, kJobSolve = 3;
 const int kHostWorks = 1, kUseCommWorld = -987654;
 const long kNoFactorization = -1000, kNotSquare = -1001, kNoMatrix = -1002, kTooManyColumns = -1004,
-           kSingularCapacitance = -1005, kDirectoryTooLong = -1006, kBadOrdering = -1007;
+           kSingularCapacitance = -1005, kDirectoryTooLong = -1006, kBadOrdering = -1007,
+           kNoThreadControl = -1008;
 const int kOrderingAuto = 0, kOrderingAmd = 1, kOrderingNested = 2;
 const int kIcntlAmd = 0, kIcntlScotch = 3;   // ICNTL(7) values
 const double kNestedDissectionPays = 6000;   // AMD's predicted operations per matrix entry (see above)
@@ -448,6 +455,25 @@ long contactMumpsOrdering(const long &mode) {
     return 0;
 }
 
+// OpenBLAS's thread control, looked up at run time in the library MUMPS's LAPACK
+// already loaded, so that the plugin links no particular BLAS.
+long contactMumpsThreads(const long &n) {
+    if (n < 1) return kNoThreadControl;
+    void *blas = dlopen("libopenblas.so.0", RTLD_LAZY | RTLD_NOLOAD);
+    if (!blas) return kNoThreadControl;
+    typedef void (*SetThreads)(int);
+    typedef int (*GetThreads)();
+    SetThreads setThreads = (SetThreads)dlsym(blas, "openblas_set_num_threads");
+    GetThreads getThreads = (GetThreads)dlsym(blas, "openblas_get_num_threads");
+    long inForce = kNoThreadControl;
+    if (setThreads && getThreads) {
+        setThreads((int)n);
+        inForce = getThreads();
+    }
+    dlclose(blas);
+    return inForce;
+}
+
 long contactMumpsStats(KN<double> *const &s) {
     ContactMumps &m = instance();
     s->resize(15);
@@ -495,6 +521,7 @@ static void Load_Init() {
                    contactMumpsLowRank));
     Global.Add("contactMumpsOutOfCore", "(", new OneOperator1_<long, string *>(contactMumpsOutOfCore));
     Global.Add("contactMumpsOrdering", "(", new OneOperator1_<long, long>(contactMumpsOrdering));
+    Global.Add("contactMumpsThreads", "(", new OneOperator1_<long, long>(contactMumpsThreads));
     Global.Add("contactMumpsStats", "(", new OneOperator1_<long, KN<double> *>(contactMumpsStats));
     Global.Add("contactMumpsRelease", "(", new OneOperator0<long>(contactMumpsRelease));
 }
