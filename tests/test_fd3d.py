@@ -52,6 +52,19 @@ def test_slab_top_cutting_the_elements_and_neighbour_stabilization(run_scene):
     assert centre_z(stab) == pytest.approx(centre_z(plain), rel=0.05)
 
 
+def test_sliver_cuts_are_dropped_and_the_smallest_kept_ratio_reported(run_scene):
+    # Slab top 1e-6 h above the grid plane z = -0.25 (nx = 8): cut ratios ~1e-6
+    nx, shift = 8, 1e-6 / 8
+    sliver = run_scene(BALL, f"mesh.nx={nx}", f"body1.centre=[0.0, 0.0, {shift!r}]", f"body2.top={-0.25 + shift!r}")
+    cut = sliver.results["cut"]
+    assert cut["min_ratio_body2"] < 2e-6 and cut["dropped_body2"] > 0
+    # the kept elements' smallest ratio lies above the sliver rule's bound, the rest are dropped
+    assert cut["drop_ratio"] < cut["min_kept_ratio_body2"] <= 1
+    assert cut["min_ratio_body1"] <= cut["min_kept_ratio_body1"] <= 1
+    assert sliver.results["newton"]["residual"][-1] < 1e-8
+    assert sliver.results["volumes"]["body2"] == pytest.approx(0.25 + shift, rel=1e-9)
+
+
 def test_outputs_are_readable(run_scene):
     run = run_scene(BALL, "mesh.nx=8")
     ball = meshio.read(run.folder / "body1.vtu")

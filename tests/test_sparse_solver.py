@@ -214,3 +214,33 @@ def test_an_unknown_ordering_is_refused(tmp_path):
         proc = run_freefem(script, "-nx", 4, "-ordering", "metis", "-outdir", out)
         assert proc.returncode == 2 and "ordering must be auto, amd or scotch" in proc.stdout + proc.stderr
         assert not out.exists()
+
+
+def test_blas_threads_are_granted_and_give_the_same_numbers_from_run_to_run(tmp_path):
+    def solve(threads, name):
+        out = tmp_path / name
+        proc = run_freefem("fd_contact_3d.edp", "-Ddegree=2", "-nx", 10, "-estimators", 0, "-vtu", 0, "-csv", 0,
+                           "-threads", threads, "-outdir", out)
+        assert proc.returncode == 0 and "WARNING" not in proc.stderr, proc.stderr[-2000:]
+        return json.loads((out / "results.json").read_text())
+
+    def numbers(results):
+        return {key: value for key, value in results.items()
+                if key not in ("timings_cpu_s", "memory", "steps", "adapt", "linear_solver")}
+
+    one, two, again = solve(1, "one"), solve(2, "two"), solve(2, "again")
+    # make setup installs the threaded OpenBLAS; the plugin sets the count asked
+    assert one["linear_solver"]["blas_threads"] == 1 and two["linear_solver"]["blas_threads"] == 2
+    # two threads sum the dense kernels' products in another order (the last digits
+    # of the 3D P2 nx = 10 run change: the threads act), the same order every time
+    assert numbers(two) != numbers(one)
+    assert numbers(again) == numbers(two)
+    centre = one["probes"]["centre"][2]
+    assert abs(two["probes"]["centre"][2] - centre) <= 1e-12*abs(centre)
+
+
+def test_a_thread_count_out_of_range_is_refused(tmp_path):
+    for script in ("fd_contact_2d.edp", "fd_contact_3d.edp"):
+        proc = run_freefem(script, "-nx", 4, "-threads", 0, "-outdir", tmp_path / script)
+        assert proc.returncode == 2 and "threads must be between 1 and 256" in proc.stdout + proc.stderr
+        assert not (tmp_path / script / "results.json").exists()
