@@ -142,6 +142,13 @@ class FreeFemFlags(list):
     def put(self, key, value):
         self.extend([f"-{key}", repr(value) if isinstance(value, float) else str(value)])
 
+    def pairs(self):
+        """The (-key, value) pairs put, after the leading macro definitions (-DNAME=value)."""
+        start = 0
+        while start < len(self) and self[start].startswith("-D") and "=" in self[start]:
+            start += 1
+        return list(zip(self[start::2], self[start + 1::2]))
+
 
 def put_declared(flags, scene, schema):
     """Send every key of the schema that declares a flag, in schema order (booleans as 0/1)."""

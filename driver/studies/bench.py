@@ -916,8 +916,7 @@ def graded_reference_flags():
     from driver.studies import fd3d
 
     scene, _ = load_scene(fd3d.BALL, fd3d.reference_settings())
-    args = scenes3d.freefem_args(scene)
-    pairs = zip(args[1::2], args[2::2])   # after -Ddegree=N: -key value
+    pairs = scenes3d.freefem_args(scene).pairs()
     return [item for key, value in pairs if key in GRADED_FLAGS for item in (key, value)]
 
 
