@@ -85,8 +85,8 @@ aposteriori-study: setup
 # NX = 90, stabilization on sliver cuts, cross-check against body-fitted meshes.
 .PHONY: fd2d-study readme
 fd2d-study: setup
-	$(PYTHON) -m driver study fd2d-convergence fd2d-gamma0 fd2d-stabilization fd2d-theta1-stabilization \
-	    fd2d-crosscheck disk-pressure fd-aposteriori
+	$(PYTHON) -m driver study fd2d-convergence fd2d-dense-ladder fd2d-gamma0 fd2d-stabilization \
+	    fd2d-theta1-stabilization fd2d-crosscheck disk-pressure fd-aposteriori
 	$(PYTHON) -m driver readme
 
 readme:

@@ -75,6 +75,19 @@ def fd2d_rates():
     return markdown_table(rates_table(pd.read_csv(RESULTS / "fd2d_rates.csv")))
 
 
+def fd2d_dense_rates():
+    from driver.studies.fd2d import dense_rates_table
+
+    return markdown_table(dense_rates_table(pd.read_csv(RESULTS / "fd2d_dense_rates.csv")))
+
+
+def fd2d_dense_ladder():
+    t = pd.read_csv(RESULTS / "fd2d_dense_ladder.csv")
+    t = t[t.theta == -1].sort_values(["reference_nx", "nx"])
+    return markdown_table(t[["reference_nx", "nx", "nested", "l2_body1", "l2_body2", "h1_body1", "h1_body2", "centre_rel_err",
+                             "newton_iterations"]], digits=3)
+
+
 def fd2d_gamma0():
     t = pd.read_csv(RESULTS / "fd2d_gamma0.csv")
     rows = []
@@ -393,6 +406,8 @@ TABLES = {
     "aposteriori_adaptive": aposteriori_adaptive,
     "aposteriori_adaptive_summary": aposteriori_adaptive_summary,
     "fd2d_rates": fd2d_rates,
+    "fd2d_dense_rates": fd2d_dense_rates,
+    "fd2d_dense_ladder": fd2d_dense_ladder,
     "fd2d_gamma0": fd2d_gamma0,
     "fd2d_stabilization": fd2d_stabilization,
     "fd3d_rates": fd3d_rates,

@@ -14,6 +14,7 @@ REGISTRY = {
     "aposteriori-adaptive": ("foundation", "aposteriori_adaptive"),
     "square-adapted": ("foundation", "square_adapted_vonmises"),
     "fd2d-convergence": ("fd2d", "convergence"),
+    "fd2d-dense-ladder": ("fd2d", "dense_ladder"),
     "fd2d-gamma0": ("fd2d", "gamma0_sweep"),
     "fd2d-stabilization": ("fd2d", "stabilization"),
     "fd2d-theta1-stabilization": ("fd2d", "theta1_stabilization"),

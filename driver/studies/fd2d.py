@@ -5,6 +5,7 @@ Errors come from freefem/tools/fd_error_2d.edp (reference cut integration, coars
 extended where it is undefined); this module only runs, tabulates and plots.
 """
 
+import json
 import os
 from pathlib import Path
 
@@ -118,6 +119,70 @@ def convergence():
                          f"disk on slab, {geometry} geometry, gamma0 = 1/200, "
                          f"reference P2 NX = {REFERENCE_NX} curved (make fd2d-study)")
     return table
+
+
+# A denser P2 ladder on the curved geometry: the meshes between the convergence
+# ladder's, which do not nest into the reference, and one mesh finer than the
+# reference (NX = 336, not nested either), which bounds the reference's own error.
+DENSE_LADDER = (40, 48, 56, 64, 80, 96, 112, 128, 160)
+REFERENCE_CHECK_NX = 336
+
+
+def dense_ladder():
+    """P2, curved geometry, every theta on DENSE_LADDER against the curved reference;
+    rates by least squares on the whole ladder and on the convergence ladder's meshes
+    alone (which reproduces fd2d_rates.csv). `nested`: the mesh nests into the reference's."""
+    ref = reference()
+    grid = [([f"method.degree=2", f"method.theta={t}", f"mesh.nx={nx}", UNSTABILIZED],
+             dict(theta=t, nested=int(REFERENCE_NX % nx == 0)))
+            for t in (1, 0, -1) for nx in DENSE_LADDER]
+    grid.append(([f"method.degree=2", "method.theta=-1", f"mesh.nx={REFERENCE_CHECK_NX}", UNSTABILIZED],
+                 dict(theta=-1, nested=0)))
+    table = pd.DataFrame(run_points(run_with_errors_points(ref, grid), "fd2d-dense-ladder")).assign(
+        reference_nx=REFERENCE_NX)
+    reference_uy = json.loads((Path(ref) / "results.json").read_text())["probes"]["centre"][1]
+    table["centre_rel_err"] = (table.centre_uy - reference_uy).abs() / abs(reference_uy)
+    # the finest mesh and one between, against the finer mesh that does not nest into the
+    # reference: whether the reference's own meshes favour those nesting into them
+    check = reference(nx=REFERENCE_CHECK_NX)
+    grid = [([f"method.degree=2", "method.theta=-1", f"mesh.nx={nx}", UNSTABILIZED],
+             dict(theta=-1, nested=int(REFERENCE_CHECK_NX % nx == 0))) for nx in (112, 160)]
+    table = pd.concat([table, pd.DataFrame(run_points(run_with_errors_points(check, grid), "fd2d-dense-ladder-check"))
+                       .assign(reference_nx=REFERENCE_CHECK_NX)], ignore_index=True)
+    RESULTS_DIR.mkdir(exist_ok=True)
+    table.to_csv(RESULTS_DIR / "fd2d_dense_ladder.csv", index=False)
+    ladder = table[(table.nx <= max(DENSE_LADDER)) & (table.reference_nx == REFERENCE_NX)]
+    rows = []
+    for theta, group in ladder[ladder.status == "converged"].groupby("theta"):
+        for subset, points in (("all", group), ("ladder", group[group.nx.isin(LADDER)])):
+            for body in (1, 2):
+                for norm in ("l2", "h1"):
+                    column = f"{norm}_body{body}"
+                    rows.append(dict(theta=theta, meshes=subset, body=body, norm=norm.upper(),
+                                     rate=loglog_slope(points.h, points[column]),
+                                     nx_used=" ".join(str(int(n)) for n in sorted(points.nx))))
+    rates = pd.DataFrame(rows)
+    rates.to_csv(RESULTS_DIR / "fd2d_dense_rates.csv", index=False)
+    print(markdown_table(dense_rates_table(rates), digits=3))
+    plot_convergence(ladder, "fd2d_dense_ladder.png",
+                     f"disk on slab, P2, curved geometry: NX = {', '.join(map(str, DENSE_LADDER))} against "
+                     f"the NX = {REFERENCE_NX} reference (make fd2d-study)", group_keys=("theta",),
+                     label=lambda key: f"P2, theta={key[0]:g}")
+    return table
+
+
+def dense_rates_table(rates):
+    """One row per norm and body, one column per theta and set of meshes."""
+    rows = []
+    for norm, body in (("L2", 1), ("L2", 2), ("H1", 1), ("H1", 2)):
+        row = {"rate": f"{norm} body {body}"}
+        for theta in (1, 0, -1):
+            for subset in ("all", "ladder"):
+                pick = rates[(rates.theta == theta) & (rates.meshes == subset) & (rates.body == body)
+                             & (rates.norm == norm)]
+                row[f"th={theta} {subset}"] = f"{pick.rate.iloc[0]:.2f}" if len(pick) else "-"
+        rows.append(row)
+    return pd.DataFrame(rows)
 
 
 def rates_table(rates):
