@@ -1,9 +1,13 @@
 """One body on a rigid foundation, body-fitted mesh: exactness, separation, complementarity."""
 
+import json
+import subprocess
+
 import numpy as np
 import pytest
 
-from conftest import relative_max_error
+from conftest import REPO, relative_max_error
+from driver.runner import freefem_env
 
 
 @pytest.mark.parametrize("degree", [1, 2])
@@ -80,3 +84,18 @@ def test_gmsh_mesh_agrees_with_box_mesh(run_scene):
     force_gmsh = gmsh.results["contact"]["force_on_body"][1]
     assert force_gmsh == pytest.approx(force_box, rel=0.02)
     assert gmsh.results["norms"]["h1"] == pytest.approx(box.results["norms"]["h1"], rel=0.01)
+
+
+def test_the_blas_runs_on_one_thread_whatever_the_environment_says(tmp_path):
+    # Debian's threaded OpenBLAS would take OPENBLAS_NUM_THREADS threads under UMFPACK,
+    # and two threads change the last digits of the foundation scene's results
+    results = {}
+    for threads in ("1", "2"):
+        out = tmp_path / f"threads{threads}"
+        env = dict(freefem_env(), OPENBLAS_NUM_THREADS=threads)
+        proc = subprocess.run(["FreeFem++", "-nw", "-v", "0", "freefem/contact_foundation_2d.edp", "-nx", "40",
+                               "-outdir", str(out)], cwd=REPO, env=env, capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        results[threads] = json.loads((out / "results.json").read_text())
+    for key in ("norms", "estimator", "contact"):
+        assert results["1"][key] == results["2"][key]
