@@ -149,7 +149,7 @@ fd3d-study: setup
 	$(PYTHON) -m driver study fd3d-convergence ball-on-slab-figure fd3d-adaptive
 	$(PYTHON) -m driver readme
 
-# The 3D P2 ladder (theta = -1, nx = 8, 12, 16, 20) on the curved cut geometry
+# The 3D P2 ladder (theta = -1, nx = 8 to 28) on the curved cut geometry
 # (docs/curved-geometry.md) against fd3d-study's graded reference solved on the curved
 # geometry (computed once into runs/reference/): results/fd3d_curved_*.csv.
 .PHONY: fd3d-curved-study
