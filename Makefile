@@ -26,11 +26,13 @@ LIBS_pressure_recovery :=
 
 setup: setup-system setup-python $(PLUGINS)
 
-# A plugin is rebuilt when its source changes (ff-c++ is FreeFEM's plugin compiler),
-# in a scratch folder, then moved in place: a run that has the old one loaded keeps it.
-freefem/plugins/%.so: freefem/plugins/%.cpp | setup-system
+# A plugin is rebuilt when its source or the plugins' shared header changes (ff-c++ is
+# FreeFEM's plugin compiler), in a scratch folder, then moved in place: a run that has
+# the old one loaded keeps it.
+PLUGIN_HEADERS := freefem/plugins/script_powers.hpp
+freefem/plugins/%.so: freefem/plugins/%.cpp $(PLUGIN_HEADERS) | setup-system
 	@echo "building $@"
-	@tmp=$$(mktemp -d) && cp $< $$tmp/ && (cd $$tmp && ff-c++ $*.cpp $(LIBS_$*) > build.log 2>&1) \
+	@tmp=$$(mktemp -d) && cp $< $$tmp/ && (cd $$tmp && ff-c++ $*.cpp -I$(CURDIR)/freefem/plugins $(LIBS_$*) > build.log 2>&1) \
 	  && mv $$tmp/$*.so $@ && rm -rf $$tmp \
 	  || { cat $$tmp/build.log; rm -rf $$tmp; echo "ERROR: could not build $@"; exit 1; }
 

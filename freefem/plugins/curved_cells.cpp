@@ -26,6 +26,8 @@
 //   Returns the number of (sub)cells done on the P1 cut (fallbacks), or -1 when the
 //   rules or the cells are not laid out as above.
 #include "ff++.hpp"
+#include "script_powers.hpp"   // sq: x^2 as the script computes it, so the rules equal the
+                                 // interpreted construction's to the bit
 
 #include <cmath>
 #include <vector>
@@ -33,12 +35,6 @@
 namespace {
 
 const int kDepthMax = 2;   // a failing cell is split into four, twice at most
-
-// FreeFEM's x^2 is the C library's pow, which differs from x*x in the last bit for
-// some x; the compiler would turn pow(x, 2.) into x*x, hence the exponent it cannot
-// see. The rules then equal those of the interpreted construction to the bit.
-volatile double kTwo = 2.;
-inline double sq(double x) { return pow(x, kTwo); }
 
 struct Points {
     std::vector<double> x, y, w, k;

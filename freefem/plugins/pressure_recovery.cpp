@@ -18,6 +18,7 @@
 //   dim 2 reads qz and nqz but takes the tangent (-ny, nx). Returns the number of
 //   points fitted, -1 when the arrays' sizes differ or a radius is not positive.
 #include "ff++.hpp"
+#include "script_powers.hpp"   // sq, cube: x^2, x^3 as the script computes them
 
 #include <algorithm>
 #include <cmath>
@@ -25,12 +26,6 @@
 #include <vector>
 
 namespace {
-
-// x^n as FreeFEM computes it (the C library's pow; the compiler would turn pow(x, 2.)
-// into x*x, which differs from it in the last bit for some x): exponents it cannot see.
-volatile double kTwo = 2., kThree = 3.;
-inline double sq(double x) { return pow(x, kTwo); }
-inline double cube(double x) { return pow(x, kThree); }
 
 double sumOf(const std::vector<double> &a) {
     double s = 0;
