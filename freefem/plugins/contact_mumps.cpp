@@ -106,16 +106,17 @@ const int kIcntlAmd = 0, kIcntlScotch = 3;   // ICNTL(7) values
 const double kNestedDissectionPays = 6000;   // AMD's predicted operations per matrix entry (see above)
 const int kColumnBlock = 32;   // right-hand sides per MUMPS solve of the low-rank columns
 
-// Puts M's entries in row order, columns increasing within a row, and marks M sorted,
-// so that M.CSR() only builds its row pointers: the state and the arrays are those
-// CSR()'s own sort leaves ((row, column) pairs are unique: one such order), so
-// FreeFEM's later products with M sum in the same order. CSR() sorts all entries
-// with a heap sort, O(nnz log nnz) with scattered memory accesses, which on the
-// Newton matrices costs about as much as MUMPS's numeric factorization; this is a
-// counting sort on rows and a sort of each row's few columns, O(nnz).
-static void sortByRows(HashMatrix<int, double> &M) {
+// M.CSR(), its row pointers M.p over entries in row order (columns increasing within
+// a row), with the entries put in that order by a counting sort first: CSR() then only
+// builds the pointers, and leaves the arrays and the state its own sort would
+// ((row, column) pairs are unique: one such order), so FreeFEM's later products with
+// M sum in the same order. CSR() alone sorts all entries with a heap sort,
+// O(nnz log nnz) with scattered memory accesses, which on the Newton matrices costs
+// about as much as MUMPS's numeric factorization; this is a counting sort on rows and
+// a sort of each row's few columns, O(nnz).
+static void rowPointers(HashMatrix<int, double> &M) {
     typedef HashMatrix<int, double> HM;
-    if (M.state == HM::sorted_ij) return;
+    if (M.state == HM::sorted_ij) { M.CSR(); return; }
     const size_t nnz = M.nnz;
     const int n = M.n, base = M.fortran;
     std::vector<size_t> rowStart(n + 1, 0);
@@ -141,6 +142,7 @@ static void sortByRows(HashMatrix<int, double> &M) {
         for (size_t k = rowStart[r]; k < rowStart[r + 1]; ++k) M.i[k] = r + base;
     M.ReHash();
     M.state = HM::sorted_ij;
+    M.CSR();
 }
 
 struct ContactMumps {
@@ -221,9 +223,8 @@ struct ContactMumps {
     // row, then column). True when the pattern is the analysed one. Summing here
     // spares the script a FreeFEM matrix sum, which hashes every entry.
     bool load(HashMatrix<int, double> &A, HashMatrix<int, double> *B) {
-        sortByRows(A);
-        A.CSR();
-        if (B) { sortByRows(*B); B->CSR(); }
+        rowPointers(A);
+        if (B) rowPointers(*B);
         const int n = A.n;
         rowsNext.clear(); colsNext.clear(); values.clear();
         const size_t reserve = A.nnz + (B ? B->nnz : 0);
@@ -386,7 +387,7 @@ struct ContactMumps {
         // P's rows and PtT's columns on the correction's points, in one pass each
         std::vector<int> position(nq, -1);
         for (int a = 0; a < r; ++a) position[corrPoints[a]] = a;
-        P.CSR();   // row pointers (no work when P is already in that state)
+        rowPointers(P);
         corrRowStart.assign(1, 0);
         for (int a = 0; a < r; ++a) {
             const int q = corrPoints[a];
