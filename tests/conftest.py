@@ -21,12 +21,13 @@ def run_cli(*args, cwd=REPO):
                           capture_output=True, text=True, env=env)
 
 
-def run_freefem(script, *args):
+def run_freefem(script, *args, env=None):
     """FreeFem++ -nw from the repository root (never raises) on a script of freefem/
-    (its name there) or on a test's own script (a Path)."""
+    (its name there) or on a test's own script (a Path); env: the process environment
+    (default this one's)."""
     target = str(script) if isinstance(script, Path) else f"freefem/{script}"
     return subprocess.run(["FreeFem++", "-nw", "-v", "0", target, *map(str, args)],
-                          cwd=REPO, capture_output=True, text=True)
+                          cwd=REPO, env=env, capture_output=True, text=True)
 
 
 class Run:

@@ -1,12 +1,11 @@
 """One body on a rigid foundation, body-fitted mesh: exactness, separation, complementarity."""
 
 import json
-import subprocess
 
 import numpy as np
 import pytest
 
-from conftest import REPO, relative_max_error
+from conftest import relative_max_error, run_freefem
 from driver.runner import freefem_env
 
 
@@ -92,9 +91,8 @@ def test_the_blas_runs_on_one_thread_whatever_the_environment_says(tmp_path):
     results = {}
     for threads in ("1", "2"):
         out = tmp_path / f"threads{threads}"
-        env = dict(freefem_env(), OPENBLAS_NUM_THREADS=threads)
-        proc = subprocess.run(["FreeFem++", "-nw", "-v", "0", "freefem/contact_foundation_2d.edp", "-nx", "40",
-                               "-outdir", str(out)], cwd=REPO, env=env, capture_output=True, text=True)
+        proc = run_freefem("contact_foundation_2d.edp", "-nx", 40, "-outdir", out,
+                           env=dict(freefem_env(), OPENBLAS_NUM_THREADS=threads))
         assert proc.returncode == 0, proc.stderr[-2000:]
         results[threads] = json.loads((out / "results.json").read_text())
     for key in ("norms", "estimator", "contact"):
