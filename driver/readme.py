@@ -88,6 +88,15 @@ def fd2d_dense_ladder():
                              "newton_iterations"]], digits=3)
 
 
+def fd2d_dense_rigid():
+    from driver.studies.fd2d import REFERENCE_NX
+
+    t = pd.read_csv(RESULTS / "fd2d_dense_ladder.csv")
+    t = t[(t.theta == -1) & (t.reference_nx == REFERENCE_NX)].sort_values("nx")
+    return markdown_table(t[["nx", "l2_body1", "rigid_l2_body1", "l2_deformation_body1", "rigid_ty_body1",
+                             "rigid_rotation_body1", "h1_body1", "h1_deformation_body1"]], digits=3)
+
+
 def fd2d_gamma0():
     t = pd.read_csv(RESULTS / "fd2d_gamma0.csv")
     rows = []
@@ -408,6 +417,7 @@ TABLES = {
     "fd2d_rates": fd2d_rates,
     "fd2d_dense_rates": fd2d_dense_rates,
     "fd2d_dense_ladder": fd2d_dense_ladder,
+    "fd2d_dense_rigid": fd2d_dense_rigid,
     "fd2d_gamma0": fd2d_gamma0,
     "fd2d_stabilization": fd2d_stabilization,
     "fd3d_rates": fd3d_rates,

@@ -71,6 +71,26 @@ def test_error_routine_self_checks(ladder, tmp_path):
         expected_h1 = np.linalg.norm(c) * area ** 0.5 / shifted["reference_norms"][f"h1_body{body}"]
         assert shifted[f"l2_body{body}"] == pytest.approx(expected_l2, rel=1e-9)
         assert shifted[f"h1_body{body}"] == pytest.approx(expected_h1, rel=1e-9)
+    # a translation is all rigid: the split finds it and leaves no deformation error
+    for body in (1, 2):
+        part = shifted["rigid_part"][f"body{body}"]
+        assert part["translation"] == pytest.approx(c, rel=1e-9)
+        assert abs(part["rotation"]) < 1e-12
+        assert part["l2"] == pytest.approx(shifted[f"l2_body{body}"], rel=1e-9)
+        assert shifted["deformation"][f"l2_body{body}"] < 1e-12
+        assert shifted["deformation"][f"h1_body{body}"] < 1e-12
+    # a rotation w (-y, x) about the origin is the rotation w about each body's
+    # centroid (xc, yc) plus the translation w (-yc, xc); its gradient goes too
+    w = 2e-3
+    rotated = errors(run, run, "-rotate", str(w))
+    for body in (1, 2):
+        part = rotated["rigid_part"][f"body{body}"]
+        xc, yc = part["centroid"]
+        assert part["rotation"] == pytest.approx(w, rel=1e-9)
+        assert part["translation"] == pytest.approx([-w * yc, w * xc], rel=1e-9, abs=1e-15)
+        assert rotated["deformation"][f"l2_body{body}"] < 1e-12
+        assert rotated["deformation"][f"h1_body{body}"] < 1e-12
+        assert rotated[f"h1_body{body}"] > 1e-3
     # the tool integrates on the run's own curved cut cells (the P1 polygon of the
     # level set misses 7.1e-3 of the disk at NX = 20; the curved cells 2.2e-7)
     assert shifted["reference_areas"]["body1"] == pytest.approx(np.pi * 0.25 ** 2, rel=1e-6)

@@ -78,6 +78,12 @@ def error_row(ref, folder, results, row, wall_s):
                case_c=results["cut"]["case_c"],
                dropped=results["cut"].get("dropped_body1", 0) + results["cut"].get("dropped_body2", 0),
                centre_uy=results["probes"]["centre"][1])
+    # the error without its rigid part, and that part on the disk (fd_error_2d.edp):
+    # its L2 norm, the approach (translation y) and the rotation about its centroid
+    out.update({f"{norm}_deformation_body{b}": err["deformation"][f"{norm}_body{b}"] for norm in ("l2", "h1")
+                for b in (1, 2)})
+    disk = err["rigid_part"]["body1"]
+    out.update(rigid_l2_body1=disk["l2"], rigid_ty_body1=disk["translation"][1], rigid_rotation_body1=disk["rotation"])
     return out
 
 
@@ -95,16 +101,19 @@ def finest_half(group):
     return group.iloc[:max(3, (len(group) + 1) // 2)]
 
 
-def rates_of(table, group_keys, meshes=finest_half):
+NORM_LABELS = {"l2": "L2", "h1": "H1", "l2_deformation": "L2 deformation", "h1_deformation": "H1 deformation"}
+
+
+def rates_of(table, group_keys, meshes=finest_half, norms=("l2", "h1")):
     """Least-squares slope in h over the meshes `meshes` picks from each ladder (sorted
-    by h; default its finest half)."""
+    by h; default its finest half), for the error columns `norms` (NORM_LABELS)."""
     rows = []
     for key, group in table[table.status == "converged"].groupby(group_keys):
         finest = meshes(group.sort_values("h"))
         for body in (1, 2):
-            for norm in ("l2", "h1"):
+            for norm in norms:
                 column = f"{norm}_body{body}"
-                rows.append(dict(zip(group_keys, key), body=body, norm=norm.upper(),
+                rows.append(dict(zip(group_keys, key), body=body, norm=NORM_LABELS[norm],
                                  rate=loglog_slope(finest.h, finest[column]),
                                  nx_used=" ".join(str(int(n)) for n in sorted(finest.nx))))
     return pd.DataFrame(rows)
@@ -164,8 +173,10 @@ def dense_ladder():
                        .assign(reference_nx=REFERENCE_CHECK_NX)], ignore_index=True)
     RESULTS_DIR.mkdir(exist_ok=True)
     table.to_csv(RESULTS_DIR / "fd2d_dense_ladder.csv", index=False)
-    rates = pd.concat([rates_of(ladder, ["theta"], meshes=lambda g: g).assign(meshes="all"),
-                       rates_of(ladder, ["theta"], meshes=lambda g: g[g.nx.isin(LADDER)]).assign(meshes="ladder")],
+    norms = tuple(NORM_LABELS)
+    rates = pd.concat([rates_of(ladder, ["theta"], meshes=lambda g: g, norms=norms).assign(meshes="all"),
+                       rates_of(ladder, ["theta"], meshes=lambda g: g[g.nx.isin(LADDER)], norms=norms)
+                       .assign(meshes="ladder")],
                       ignore_index=True)
     rates.to_csv(RESULTS_DIR / "fd2d_dense_rates.csv", index=False)
     print(markdown_table(dense_rates_table(rates), digits=3))
@@ -177,9 +188,10 @@ def dense_ladder():
 
 
 def dense_rates_table(rates):
-    """One row per norm and body, one column per theta and set of meshes."""
+    """One row per norm and body, one column per theta and set of meshes; the disk's
+    errors without their rigid part last."""
     rows = []
-    for norm, body in (("L2", 1), ("L2", 2), ("H1", 1), ("H1", 2)):
+    for norm, body in (("L2", 1), ("L2", 2), ("H1", 1), ("H1", 2), ("L2 deformation", 1), ("H1 deformation", 1)):
         row = {"rate": f"{norm} body {body}"}
         for theta in (1, 0, -1):
             for subset in ("all", "ladder"):
