@@ -48,23 +48,27 @@ setup-system:
 	fi
 
 # The check costs nothing when everything is installed: .setup-python lists the
-# interpreter and the file each package was found at (find_spec locates them without
-# importing; importing them all costs about 1.3 s), and while the stamp is newer than
-# requirements.txt, names the same interpreter and every file it lists exists, no
-# Python starts. A package removed, a new requirement or another PYTHON: the check
-# runs again (and installs what is missing).
+# interpreter and the file each package was found at, and while the stamp is newer
+# than requirements.txt, names the same interpreter and every file it lists exists,
+# no Python starts. Otherwise one Python process looks the packages up (find_spec
+# locates them without importing; importing them all costs about 1.3 s) and writes
+# the stamp, or exits 1 when one is missing: then pip installs requirements.txt and
+# the look-up runs again. A package removed, a new requirement or another PYTHON:
+# the check runs again.
 PYTHON_PACKAGES := numpy pandas matplotlib meshio pytest scipy dask distributed tqdm
 PYTHON_STAMP := .setup-python
+PYTHON_STAMP_WRITE = $(PYTHON) -c "import importlib.util as u, os, sys; \
+	specs = [u.find_spec(m) for m in sys.argv[3:]]; None in specs and sys.exit(1); \
+	f = sys.argv[2]; open(f + '.tmp', 'w').write('\\n'.join([sys.argv[1]] + [s.origin for s in specs]) + '\\n'); \
+	os.replace(f + '.tmp', f)" "$$(command -v $(PYTHON))" $(PYTHON_STAMP) $(PYTHON_PACKAGES)
 setup-python:
 	@if ! { [ $(PYTHON_STAMP) -nt requirements.txt ] && [ "$$(head -n 1 $(PYTHON_STAMP))" = "$$(command -v $(PYTHON))" ] \
 	        && tail -n +2 $(PYTHON_STAMP) | { while read -r f; do [ -e "$$f" ] || exit 1; done; }; }; then \
-	  if ! $(PYTHON) -c "import importlib.util as u, sys; sys.exit(any(u.find_spec(m) is None for m in sys.argv[1:]))" \
-	      $(PYTHON_PACKAGES) 2>/dev/null; then \
+	  if ! $(PYTHON_STAMP_WRITE) 2>/dev/null; then \
 	    echo "installing Python packages from requirements.txt"; \
-	    $(PYTHON) -m pip install -q -r requirements.txt; \
+	    $(PYTHON) -m pip install -q -r requirements.txt && $(PYTHON_STAMP_WRITE) \
+	      || { echo "ERROR: not every one of $(PYTHON_PACKAGES) can be found after installing requirements.txt"; exit 1; }; \
 	  fi; \
-	  $(PYTHON) -c "import importlib.util as u, os, sys; f = sys.argv[2]; open(f + '.tmp', 'w').write('\\n'.join([sys.argv[1]] + [u.find_spec(m).origin for m in sys.argv[3:]]) + '\\n'); os.replace(f + '.tmp', f)" \
-	      "$$(command -v $(PYTHON))" $(PYTHON_STAMP) $(PYTHON_PACKAGES); \
 	fi
 
 # make case [CASE=cases/NAME.toml] [SET="mesh.nx=80 method.theta=1"]
