@@ -81,20 +81,24 @@ def fd2d_dense_rates():
     return markdown_table(dense_rates_table(pd.read_csv(RESULTS / "fd2d_dense_rates.csv")))
 
 
-def fd2d_dense_ladder():
+def dense_ladder_theta_minus1():
+    """The theta = -1 rows of fd2d_dense_ladder.csv, by reference and mesh."""
     t = pd.read_csv(RESULTS / "fd2d_dense_ladder.csv")
-    t = t[t.theta == -1].sort_values(["reference_nx", "nx"])
-    return markdown_table(t[["reference_nx", "nx", "nested", "l2_body1", "l2_body2", "h1_body1", "h1_body2", "centre_rel_err",
-                             "newton_iterations"]], digits=3)
+    return t[t.theta == -1].sort_values(["reference_nx", "nx"])
+
+
+def fd2d_dense_ladder():
+    return markdown_table(dense_ladder_theta_minus1()[["reference_nx", "nx", "nested", "l2_body1", "l2_body2", "h1_body1",
+                                                       "h1_body2", "centre_rel_err", "newton_iterations"]], digits=3)
 
 
 def fd2d_dense_rigid():
     from driver.studies.fd2d import REFERENCE_NX
 
-    t = pd.read_csv(RESULTS / "fd2d_dense_ladder.csv")
-    t = t[(t.theta == -1) & (t.reference_nx == REFERENCE_NX)].sort_values("nx")
-    return markdown_table(t[["nx", "l2_body1", "rigid_l2_body1", "l2_deformation_body1", "rigid_ty_body1",
-                             "rigid_rotation_body1", "h1_body1", "h1_deformation_body1"]], digits=3)
+    t = dense_ladder_theta_minus1()
+    return markdown_table(t[t.reference_nx == REFERENCE_NX][["nx", "l2_body1", "rigid_l2_body1", "l2_deformation_body1",
+                                                            "rigid_ty_body1", "rigid_rotation_body1", "h1_body1",
+                                                            "h1_deformation_body1"]], digits=3)
 
 
 def fd2d_gamma0():
