@@ -1,10 +1,13 @@
 // curved_cells: the quadrature of the 2D curved cut cells (docs/curved-geometry.md,
-// freefem/lib/fd2d/curved.idp, which describes the construction), compiled.
+// freefem/lib/fd2d/curved.idp, which describes the construction), and the pieces of
+// the cut elements' edges that the estimators integrate on, compiled.
 //
-// Why compiled: the construction is a loop over cut cells with root searches on the
-// exact level set along lines; interpreted, it cost more than the rest of the cut
-// geometry together on the default scene. Which cells are cut, the level set, the
-// use of the rules are the script's; this plugin only builds the rules.
+// Why compiled: both are loops over cut cells and their edges with root searches on
+// the exact level set along lines. Interpreted, the construction cost more than the
+// rest of the cut geometry together on the default scene, and the edge pieces half
+// of the estimators (FreeFEM's interpreter also reads the process clock twice per
+// statement). Which cells are cut, the level set, the use of the rules and points
+// are the script's; this plugin only builds them.
 //
 // Script interface:
 //   int curvedCellRules(real[int] cells, real[int] rules, real[int] ratio,
@@ -25,6 +28,30 @@
 //       evaluated at the points the construction asks for.
 //   Returns the number of (sub)cells done on the P1 cut (fallbacks), or -1 when the
 //   rules or the cells are not laid out as above.
+//
+//   int cutEdgePieces(mesh Th, real[int] phiV, real[int] segK, real[int] chBg,
+//                     real[int] faces, real[int] rule, int exact, real[int] points,
+//                     int[int] entryPoint, real[int] entryElement, real phi)
+//   the rule of fd2d/estimators.idp fdEstCutEdges: phiV the P1 level set's vertex
+//   values, segK the cut elements, chBg the R_rho element of every element, faces =
+//   [x0, x1, y0, y1] (the box), then by box-face label (7 each; 0 inside, 1..4 as
+//   square() labels the sides) 1 where the face is held strongly, the traction data
+//   x, the traction data y; rule = [nG, nodes, weights] (Gauss on [0, 1]); exact = 1
+//   to end crossed edges at the root of phi;
+//   points: resized to 10 nq (nq = nG per piece): x, y, weight, then per point the R_rho
+//       elements of its two sides, 1 on interior edges, the edge's normal (x, y),
+//       the face traction (x, y);
+//   entryPoint, entryElement: nG per (piece, element it is added to): the point and
+//       the element.
+//   Returns the number of pieces, or -1 when the arrays are not sized as above.
+//
+//   int contactPointGeometry(real[int] px, real[int] py, real[int] pk, real[int] hK,
+//                            real[int] params, real[int] out, real phi)
+//   fd2d/contact.idp nitscheContactGeometry at the points (px, py) of elements pk:
+//   params = [gamma0, step, shiftIn], hK per element; out resized to 6 n: the gaps,
+//   gamma = gamma0 h_K, the normals (x, y) of phi at the projections, the projections
+//   moved by shiftIn h_K along -n (x, y). Returns n, or -1 when the arrays are not
+//   sized as above.
 #include "ff++.hpp"
 #include "script_powers.hpp"   // sq: x^2 as the script computes it, so the rules equal the
                                  // interpreted construction's to the bit
@@ -342,8 +369,234 @@ class CurvedCellRules : public E_F0mps {
     }
 };
 
+// The estimators' cut-edge pieces (fd2d/estimators.idp fdEstCutEdges, which states
+// the rule): every edge of the cut elements restricted to the body, as one piece
+// shared by the elements it is added to, with its Gauss points and what each point
+// reads (the R_rho elements of its two sides, whether it is interior, the edge's
+// normal, the traction data of the box face it lies on).
+class CutEdgePieces : public E_F0mps {
+  public:
+    typedef long Result;
+    Expression mesh, phiV, segK, chBg, faces, rule, exact, points, entryPoint, entryElement, phi;
+
+    explicit CutEdgePieces(const basicAC_F0 &args) {
+        args.SetNameParam();
+        mesh = to<pmesh>(args[0]);
+        phiV = to<KN<double> *>(args[1]);
+        segK = to<KN<double> *>(args[2]);
+        chBg = to<KN<double> *>(args[3]);
+        faces = to<KN<double> *>(args[4]);
+        rule = to<KN<double> *>(args[5]);
+        exact = to<long>(args[6]);
+        points = to<KN<double> *>(args[7]);
+        entryPoint = to<KN<long> *>(args[8]);
+        entryElement = to<KN<double> *>(args[9]);
+        phi = to<double>(args[10]);
+    }
+    static ArrayOfaType typeargs() {
+        aType r = atype<KN<double> *>();
+        return ArrayOfaType(atype<pmesh>(), r, r, r, r, r, atype<long>(), r, atype<KN<long> *>(), r, atype<double>());
+    }
+    static E_F0 *f(const basicAC_F0 &args) { return new CutEdgePieces(args); }
+
+    AnyType operator()(Stack stack) const {
+        const Mesh &Th = *GetAny<pmesh>((*mesh)(stack));
+        const KN<double> &phiBg = *GetAny<KN<double> *>((*phiV)(stack));
+        const KN<double> &cut = *GetAny<KN<double> *>((*segK)(stack));
+        const KN<double> &chosen = *GetAny<KN<double> *>((*chBg)(stack));
+        const KN<double> &faceData = *GetAny<KN<double> *>((*faces)(stack));
+        const KN<double> &gauss = *GetAny<KN<double> *>((*rule)(stack));
+        bool onExact = GetAny<long>((*exact)(stack)) != 0;
+        KN<double> &pointsOut = *GetAny<KN<double> *>((*points)(stack));
+        KN<long> &entryPointOut = *GetAny<KN<long> *>((*entryPoint)(stack));
+        KN<double> &entryElementOut = *GetAny<KN<double> *>((*entryElement)(stack));
+        if (gauss.N() < 1) return -1L;
+        int nG = lround(gauss[0]);
+        if (nG < 1 || gauss.N() != 1 + 2 * nG || phiBg.N() != Th.nv || chosen.N() != Th.nt || faceData.N() != 25)
+            return -1L;
+        const double *gt = &gauss[1], *gw = &gauss[1 + nG];
+        double x0 = faceData[0], x1 = faceData[1], y0 = faceData[2], y1 = faceData[3];
+        const double *heldFace = &faceData[4], *faceTx = &faceData[11], *faceTy = &faceData[18];
+        // box face of an edge (square() labels: 1 bottom, 2 right, 3 top, 4 left; 0 none)
+        auto boxFace = [&](double ax, double ay, double bx, double by) {
+            if (fabs(ay - y0) + fabs(by - y0) < 1e-10) return 1;
+            if (fabs(ax - x1) + fabs(bx - x1) < 1e-10) return 2;
+            if (fabs(ay - y1) + fabs(by - y1) < 1e-10) return 3;
+            if (fabs(ax - x0) + fabs(bx - x0) < 1e-10) return 4;
+            return 0;
+        };
+        MeshPoint *mp = MeshPointStack(stack), saved = *mp;
+        LevelSet levelSet(stack, phi);
+        std::vector<char> isCut(Th.nt, 0);
+        for (long s = 0; s < cut.N(); s++) isCut[lround(cut[s])] = 1;
+        std::vector<long> pieceOf(3 * Th.nt, -1);
+        // per piece: its inside and outside vertices, its ends, and what its points read
+        struct Piece { int iN, iP; double ax, ay, bx, by, sa, sb, inner, nx, ny, tx, ty; };
+        std::vector<Piece> pieces;
+        std::vector<long> entryP, entryK;
+        for (long s = 0; s < cut.N(); s++) {
+            int k = lround(cut[s]);
+            for (int e = 0; e < 3; e++) {
+                int ia = Th(k, (e + 1) % 3), ib = Th(k, (e + 2) % 3);
+                double fa = phiBg[ia], fb = phiBg[ib];
+                if (fa >= 0 && fb >= 0) continue;
+                int iN = (fa < 0) ? ia : ib, iP = (fa < 0) ? ib : ia;
+                int ee = e, kk = Th.ElementAdj(k, ee);
+                bool inner = (kk >= 0 && kk != k);
+                long piece = -1;
+                if (inner && isCut[kk])
+                    for (int f = 0; f < 3; f++) {
+                        long pf = pieceOf[3 * kk + f];
+                        if (pf >= 0 && pieces[pf].iN == iN && pieces[pf].iP == iP) piece = pf;
+                    }
+                if (piece < 0) {
+                    double fN = phiBg[iN], fP = phiBg[iP], t = 1.;
+                    double nX = Th(iN).x, nY = Th(iN).y, pX = Th(iP).x, pY = Th(iP).y;
+                    int face = inner ? 0 : boxFace(nX, nY, pX, pY);
+                    if (!inner && heldFace[face] > 0.5) continue;   // held strongly: exact
+                    if (fP >= 0) {
+                        t = fN / (fN - fP);
+                        double root;
+                        if (onExact && lineRoot(levelSet, nX, nY, pX - nX, pY - nY, 1., 0., 1., t,
+                                                1e-12 * std::max(-fN, fP), root))
+                            t = root;
+                    }
+                    double ex = pX - nX, ey = pY - nY, len = sqrt(sq(ex) + sq(ey));
+                    Piece p = {iN, iP, nX, nY, nX + t * ex, nY + t * ey, chosen[k], inner ? chosen[kk] : chosen[k],
+                               inner ? 1. : 0., ey / len, -ex / len, faceTx[face], faceTy[face]};
+                    piece = pieces.size();
+                    pieces.push_back(p);
+                }
+                pieceOf[3 * k + e] = piece;
+                entryP.push_back(piece); entryK.push_back(k);
+                if (inner && !isCut[kk]) { entryP.push_back(piece); entryK.push_back(kk); }   // its side too
+            }
+        }
+        *mp = saved;
+        // the pieces' Gauss points (fd2d/levelset.idp lsSegmentQuadrature), 10 blocks:
+        // x, y, w, then per point sa, sb, inner, nx, ny, tx, ty
+        long nq = pieces.size() * nG;
+        pointsOut.resize(10 * nq);
+        for (size_t p = 0; p < pieces.size(); p++) {
+            const Piece &c = pieces[p];
+            double len = sqrt(sq(c.bx - c.ax) + sq(c.by - c.ay));
+            const double value[7] = {c.sa, c.sb, c.inner, c.nx, c.ny, c.tx, c.ty};
+            for (int g = 0; g < nG; g++) {
+                long q = p * nG + g;
+                pointsOut[q] = c.ax + gt[g] * (c.bx - c.ax);
+                pointsOut[nq + q] = c.ay + gt[g] * (c.by - c.ay);
+                pointsOut[2 * nq + q] = len * gw[g];
+                for (int v = 0; v < 7; v++) pointsOut[(3 + v) * nq + q] = value[v];
+            }
+        }
+        long nE = entryP.size();
+        entryPointOut.resize(nE * nG);
+        entryElementOut.resize(nE * nG);
+        for (long j = 0; j < nE; j++)
+            for (int g = 0; g < nG; g++) {
+                entryPointOut[j * nG + g] = entryP[j] * nG + g;
+                entryElementOut[j * nG + g] = entryK[j];
+            }
+        return (long)pieces.size();
+    }
+};
+
+// The closest point of {phi = 0} to (px, py) and grad phi there, by central
+// differences of half-width step: fd2d/levelset.idp lsProject and lsGradient, step
+// for step.
+void gradient(const LevelSet &phi, double px, double py, double step, double &gx, double &gy) {
+    gx = (phi(px + step, py) - phi(px - step, py)) / (2. * step);
+    gy = (phi(px, py + step) - phi(px, py - step)) / (2. * step);
+}
+
+void projectNormal(const LevelSet &phi, double &qx, double &qy, double step) {
+    for (int it = 0; it < 3; it++) {
+        double gx, gy;
+        gradient(phi, qx, qy, step, gx, gy);
+        double f = phi(qx, qy), g2 = std::max(sq(gx) + sq(gy), 1e-300);
+        qx -= f * gx / g2;
+        qy -= f * gy / g2;
+        if (fabs(f) < 1e-14) break;
+    }
+}
+
+void project(const LevelSet &phi, double px, double py, double step, double &qx, double &qy) {
+    qx = px; qy = py;
+    projectNormal(phi, qx, qy, step);
+    for (int it = 0; it < 30; it++) {
+        double nx, ny;
+        gradient(phi, qx, qy, step, nx, ny);
+        double n = std::max(sqrt(sq(nx) + sq(ny)), 1e-300);
+        nx /= n; ny /= n;
+        double dx = px - qx, dy = py - qy, dn = dx * nx + dy * ny;
+        double tx = dx - dn * nx, ty = dy - dn * ny;
+        if (sqrt(sq(tx) + sq(ty)) <= 1e-8 * sqrt(sq(dx) + sq(dy)) + 1e-6 * step) break;
+        qx += tx; qy += ty;
+        projectNormal(phi, qx, qy, step);
+    }
+}
+
+// The contact points' geometry (fd2d/contact.idp nitscheContactGeometry, which states
+// it): projections onto body 2's level set, gaps, normals and gamma.
+class ContactPointGeometry : public E_F0mps {
+  public:
+    typedef long Result;
+    Expression px, py, pk, hK, params, out, phi;
+
+    explicit ContactPointGeometry(const basicAC_F0 &args) {
+        args.SetNameParam();
+        px = to<KN<double> *>(args[0]);
+        py = to<KN<double> *>(args[1]);
+        pk = to<KN<double> *>(args[2]);
+        hK = to<KN<double> *>(args[3]);
+        params = to<KN<double> *>(args[4]);
+        out = to<KN<double> *>(args[5]);
+        phi = to<double>(args[6]);
+    }
+    static ArrayOfaType typeargs() {
+        aType r = atype<KN<double> *>();
+        return ArrayOfaType(r, r, r, r, r, r, atype<double>());
+    }
+    static E_F0 *f(const basicAC_F0 &args) { return new ContactPointGeometry(args); }
+
+    AnyType operator()(Stack stack) const {
+        const KN<double> &x = *GetAny<KN<double> *>((*px)(stack));
+        const KN<double> &y = *GetAny<KN<double> *>((*py)(stack));
+        const KN<double> &k = *GetAny<KN<double> *>((*pk)(stack));
+        const KN<double> &h = *GetAny<KN<double> *>((*hK)(stack));
+        const KN<double> &p = *GetAny<KN<double> *>((*params)(stack));
+        KN<double> &o = *GetAny<KN<double> *>((*out)(stack));
+        long n = x.N();
+        if (y.N() != n || k.N() != n || p.N() != 3) return -1L;
+        for (long q = 0; q < n; q++)
+            if (!(k[q] >= 0 && k[q] < h.N())) return -1L;
+        double gamma0 = p[0], step = p[1], shiftIn = p[2];
+        MeshPoint *mp = MeshPointStack(stack), saved = *mp;
+        LevelSet levelSet(stack, phi);
+        o.resize(6 * n);
+        for (long q = 0; q < n; q++) {
+            double fx, fy, gx, gy;
+            project(levelSet, x[q], y[q], step, fx, fy);
+            gradient(levelSet, fx, fy, step, gx, gy);
+            double gn = sqrt(sq(gx) + sq(gy)), nx = gx / gn, ny = gy / gn, hq = h[lround(k[q])];
+            o[q] = (x[q] - fx) * nx + (y[q] - fy) * ny;
+            o[n + q] = gamma0 * hq;
+            o[2 * n + q] = nx;
+            o[3 * n + q] = ny;
+            o[4 * n + q] = fx - shiftIn * hq * nx;
+            o[5 * n + q] = fy - shiftIn * hq * ny;
+        }
+        *mp = saved;
+        return n;
+    }
+};
+
 }  // namespace
 
-static void Load_Init() { Global.Add("curvedCellRules", "(", new OneOperatorCode<CurvedCellRules>()); }
+static void Load_Init() {
+    Global.Add("contactPointGeometry", "(", new OneOperatorCode<ContactPointGeometry>());
+    Global.Add("curvedCellRules", "(", new OneOperatorCode<CurvedCellRules>());
+    Global.Add("cutEdgePieces", "(", new OneOperatorCode<CutEdgePieces>());
+}
 
 LOADFUNC(Load_Init)
