@@ -47,7 +47,8 @@
 //
 //   int contactPointGeometry(real[int] px, real[int] py, real[int] pk, real[int] hK,
 //                            real[int] params, real[int] out, real phi)
-//   fd2d/contact.idp nitscheContactGeometry at the points (px, py) of elements pk:
+//   fd2d/contact.idp nitscheContactGeometry at the points (px, py) of elements pk
+//   (the closest point of {phi = 0}, see project below, and grad phi there):
 //   params = [gamma0, step, shiftIn], hK per element; out resized to 6 n: the gaps,
 //   gamma = gamma0 h_K, the normals (x, y) of phi at the projections, the projections
 //   moved by shiftIn h_K along -n (x, y). Returns n, or -1 when the arrays are not
@@ -501,9 +502,8 @@ class CutEdgePieces : public E_F0mps {
     }
 };
 
-// The closest point of {phi = 0} to (px, py) and grad phi there, by central
-// differences of half-width step: fd2d/levelset.idp lsProject and lsGradient, step
-// for step.
+// grad phi by central differences of half-width step (fd2d/levelset.idp lsGradient,
+// step for step).
 void gradient(const LevelSet &phi, double px, double py, double step, double &gx, double &gy) {
     gx = (phi(px + step, py) - phi(px - step, py)) / (2. * step);
     gy = (phi(px, py + step) - phi(px, py - step)) / (2. * step);
@@ -520,6 +520,13 @@ void projectNormal(const LevelSet &phi, double &qx, double &qy, double step) {
     }
 }
 
+// Closest point (qx, qy) of {phi = 0} to (px, py): first x - phi grad phi/|grad phi|^2,
+// iterated onto the zero set (projectNormal: exact in one step for a signed distance
+// to a line or a circle); then, because that foot point is the closest one only for
+// such distances (ellipses, unions, expressions are not), the tangential part of
+// x - q is added and the point projected again, until x - q is normal to the curve
+// at q (at most 30 times; a kink of a union or intersection may stop it earlier, on
+// the curve).
 void project(const LevelSet &phi, double px, double py, double step, double &qx, double &qy) {
     qx = px; qy = py;
     projectNormal(phi, qx, qy, step);
@@ -530,6 +537,7 @@ void project(const LevelSet &phi, double px, double py, double step, double &qx,
         nx /= n; ny /= n;
         double dx = px - qx, dy = py - qy, dn = dx * nx + dy * ny;
         double tx = dx - dn * nx, ty = dy - dn * ny;
+        // the central-difference normal carries about 1e-9 of relative noise
         if (sqrt(sq(tx) + sq(ty)) <= 1e-8 * sqrt(sq(dx) + sq(dy)) + 1e-6 * step) break;
         qx += tx; qy += ty;
         projectNormal(phi, qx, qy, step);
