@@ -11,7 +11,8 @@ SUDO := $(shell [ "$$(id -u)" -eq 0 ] || echo sudo)
 # the bit; more threads pay on large 3D runs (docs/benchmarks.md).
 # libfreefem++-dev, libmumps-seq-dev, g++: to build the plugins (freefem/plugins:
 # the Newton's MUMPS instance, contact_mumps.cpp; the 2D curved cut cells, the
-# estimators' cut-edge pieces and the contact points' projections, curved_cells.cpp; the recovered contact pressure, pressure_recovery.cpp).
+# estimators' cut-edge pieces, the contact points' projections and the level-set
+# normals, curved_cells.cpp; the recovered contact pressure, pressure_recovery.cpp).
 DEBIAN_PACKAGES := freefem++ libfreefem++ gmsh libopenblas0-pthread libfreefem++-dev libmumps-seq-dev g++
 OPENBLAS := /usr/lib/x86_64-linux-gnu/openblas-pthread/libblas.so.3
 export FF_LOADPATH := /usr/lib/freefem++

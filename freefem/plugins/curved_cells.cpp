@@ -43,7 +43,8 @@
 //       the face traction (x, y);
 //   entryPoint, entryElement: nG per (piece, element it is added to): the point and
 //       the element.
-//   Returns the number of pieces, or -1 when the arrays are not sized as above.
+//   Returns the number of pieces, or -1 when the arrays are not sized as above or an
+//   element of segK is not one of Th's.
 //
 //   int contactPointGeometry(real[int] px, real[int] py, real[int] pk, real[int] hK,
 //                            real[int] params, real[int] out, real phi)
@@ -53,6 +54,11 @@
 //   gamma = gamma0 h_K, the normals (x, y) of phi at the projections, the projections
 //   moved by shiftIn h_K along -n (x, y). Returns n, or -1 when the arrays are not
 //   sized as above.
+//
+//   int levelSetNormals(real[int] px, real[int] py, real step, real[int] out, real phi)
+//   the unit normals grad phi/|grad phi| at the points (central differences of
+//   half-width step); out resized to 2 n: x, then y. Returns n, or -1 when px and py
+//   differ in size or step is not positive.
 #include "ff++.hpp"
 #include "script_powers.hpp"   // sq: x^2 as the script computes it, so the rules equal the
                                  // interpreted construction's to the bit
@@ -426,6 +432,8 @@ class CutEdgePieces : public E_F0mps {
             if (fabs(ax - x0) + fabs(bx - x0) < 1e-10) return 4;
             return 0;
         };
+        for (long s = 0; s < cut.N(); s++)
+            if (!(cut[s] >= 0 && cut[s] < Th.nt)) return -1L;
         MeshPoint *mp = MeshPointStack(stack), saved = *mp;
         LevelSet levelSet(stack, phi);
         std::vector<char> isCut(Th.nt, 0);
@@ -502,8 +510,8 @@ class CutEdgePieces : public E_F0mps {
     }
 };
 
-// grad phi by central differences of half-width step (fd2d/levelset.idp lsGradient,
-// step for step).
+// grad phi by central differences of half-width step: the script's gradient of the
+// exact level set (every caller is compiled: the projections, the normals).
 void gradient(const LevelSet &phi, double px, double py, double step, double &gx, double &gy) {
     gx = (phi(px + step, py) - phi(px - step, py)) / (2. * step);
     gy = (phi(px, py + step) - phi(px, py - step)) / (2. * step);
@@ -599,9 +607,53 @@ class ContactPointGeometry : public E_F0mps {
     }
 };
 
+// Unit normals grad phi/|grad phi| at points (fd2d/levelset.idp lsGradient's central
+// differences): the cut boundaries' normals of the Nitsche holds and the estimators.
+class LevelSetNormals : public E_F0mps {
+  public:
+    typedef long Result;
+    Expression px, py, step, out, phi;
+
+    explicit LevelSetNormals(const basicAC_F0 &args) {
+        args.SetNameParam();
+        px = to<KN<double> *>(args[0]);
+        py = to<KN<double> *>(args[1]);
+        step = to<double>(args[2]);
+        out = to<KN<double> *>(args[3]);
+        phi = to<double>(args[4]);
+    }
+    static ArrayOfaType typeargs() {
+        aType r = atype<KN<double> *>();
+        return ArrayOfaType(r, r, atype<double>(), r, atype<double>());
+    }
+    static E_F0 *f(const basicAC_F0 &args) { return new LevelSetNormals(args); }
+
+    AnyType operator()(Stack stack) const {
+        const KN<double> &x = *GetAny<KN<double> *>((*px)(stack));
+        const KN<double> &y = *GetAny<KN<double> *>((*py)(stack));
+        double h = GetAny<double>((*step)(stack));
+        KN<double> &o = *GetAny<KN<double> *>((*out)(stack));
+        long n = x.N();
+        if (y.N() != n || !(h > 0)) return -1L;
+        MeshPoint *mp = MeshPointStack(stack), saved = *mp;
+        LevelSet levelSet(stack, phi);
+        o.resize(2 * n);
+        for (long q = 0; q < n; q++) {
+            double gx, gy;
+            gradient(levelSet, x[q], y[q], h, gx, gy);
+            double gn = sqrt(sq(gx) + sq(gy));
+            o[q] = gx / gn;
+            o[n + q] = gy / gn;
+        }
+        *mp = saved;
+        return n;
+    }
+};
+
 }  // namespace
 
 static void Load_Init() {
+    Global.Add("levelSetNormals", "(", new OneOperatorCode<LevelSetNormals>());
     Global.Add("contactPointGeometry", "(", new OneOperatorCode<ContactPointGeometry>());
     Global.Add("curvedCellRules", "(", new OneOperatorCode<CurvedCellRules>());
     Global.Add("cutEdgePieces", "(", new OneOperatorCode<CutEdgePieces>());
