@@ -155,10 +155,12 @@ scenes-study: setup
 
 # The curved cut geometry against the P1 one (docs/curved-geometry.md): cut-cell
 # accuracy, disk-on-slab convergence against a curved P2 NX = 320 reference
-# (computed once into runs/reference/), cost of the NX = 80 run.
+# (computed once into runs/reference/), cost of the NX = 80 run, and the smooth
+# problems of cases/verification/ (a patch test with an exact quadratic, the held
+# ring's ladder against its own NX = 320 references).
 .PHONY: curved-study
 curved-study: setup
-	$(PYTHON) -m driver study curved-geometry curved-convergence
+	$(PYTHON) -m driver study curved-geometry curved-convergence curved-smooth
 	$(PYTHON) -m driver readme
 
 .PHONY: fd3d-study

@@ -394,6 +394,30 @@ def curved_convergence():
 def curved_cost():
     return markdown_table(pd.read_csv(RESULTS / "curved_cost.csv"), digits=3)
 
+
+def curved_patch():
+    t = pd.read_csv(RESULTS / "curved_patch.csv")
+    return markdown_table(t[["geometry", "nx", "max_probe_err", "area_rel_err", "newton_iterations"]], digits=2)
+
+
+def curved_smooth_rates():
+    """The held ring's rates: one row per theta, L2 and H1 per geometry."""
+    t = pd.read_csv(RESULTS / "curved_smooth_rates.csv")
+    rows = []
+    for theta, group in t.groupby("theta", sort=False):
+        by = group.set_index("geometry")
+        rows.append({"theta": f"{theta:g}", "nx used": by.nx_used.iloc[0],
+                     "L2 curved": f"{by.l2_rate['curved']:.2f}", "L2 p1": f"{by.l2_rate['p1']:.2f}",
+                     "H1 curved": f"{by.h1_rate['curved']:.2f}", "H1 p1": f"{by.h1_rate['p1']:.2f}"})
+    return markdown_table(pd.DataFrame(rows))
+
+
+def curved_smooth():
+    t = pd.read_csv(RESULTS / "curved_smooth.csv")
+    t = t[t.theta == -1].sort_values(["geometry", "nx"])
+    return markdown_table(t[["geometry", "nx", "dofs", "l2_body2", "h1_body2", "dropped", "newton_iterations",
+                             "wall_s"]], digits=3)
+
 TABLES = {
     **{name: functools.partial(stamped_bench_table, name) for name in STAMPED_BENCH_TABLES},
     "hertz": hertz,
@@ -436,6 +460,9 @@ TABLES = {
     "curved_geometry_3d": curved_geometry_3d,
     "curved_convergence": curved_convergence,
     "curved_cost": curved_cost,
+    "curved_patch": curved_patch,
+    "curved_smooth_rates": curved_smooth_rates,
+    "curved_smooth": curved_smooth,
 }
 
 

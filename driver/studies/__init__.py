@@ -32,6 +32,7 @@ REGISTRY = {
     "scenes": ("scenes", "scenes"),
     "curved-geometry": ("curved", "geometry_check"),
     "curved-convergence": ("curved", "convergence"),
+    "curved-smooth": ("curved", "smooth_problems"),
     "bench": ("bench", "bench"),
     "bench-newton": ("bench", "newton_grid"),
     "bench-overhead": ("bench", "overhead"),
