@@ -170,10 +170,12 @@ fd3d-study: setup
 
 # The 3D P2 ladder (theta = -1, nx = 8 to 28) on the curved cut geometry
 # (docs/curved-geometry.md) against fd3d-study's graded reference solved on the curved
-# geometry (computed once into runs/reference/): results/fd3d_curved_*.csv.
+# geometry (computed once into runs/reference/): results/fd3d_curved_*.csv; then the
+# 3D smooth problems of cases/verification/ (clamped ball, held shell against its own
+# nx = 32 reference): results/curved_*_3d*.csv.
 .PHONY: fd3d-curved-study
 fd3d-curved-study: setup
-	$(PYTHON) -m driver study fd3d-curved-convergence
+	$(PYTHON) -m driver study fd3d-curved-convergence fd3d-curved-smooth
 	$(PYTHON) -m driver readme
 
 # Parameter sweeps on Dask (docs/sweeps.md): one FreeFEM run per point,

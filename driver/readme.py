@@ -395,14 +395,14 @@ def curved_cost():
     return markdown_table(pd.read_csv(RESULTS / "curved_cost.csv"), digits=3)
 
 
-def curved_patch():
-    t = pd.read_csv(RESULTS / "curved_patch.csv")
-    return markdown_table(t[["geometry", "nx", "max_probe_err", "area_rel_err", "newton_iterations"]], digits=2)
+def curved_patch(csv="curved_patch.csv", measure="area_rel_err"):
+    t = pd.read_csv(RESULTS / csv)
+    return markdown_table(t[["geometry", "nx", "max_probe_err", measure, "newton_iterations"]], digits=2)
 
 
-def curved_smooth_rates():
-    """The held ring's rates: one row per theta, L2 and H1 per geometry."""
-    t = pd.read_csv(RESULTS / "curved_smooth_rates.csv")
+def curved_smooth_rates(csv="curved_smooth_rates.csv"):
+    """A held scene's rates: one row per theta, L2 and H1 per geometry."""
+    t = pd.read_csv(RESULTS / csv)
     rows = []
     for theta, group in t.groupby("theta", sort=False):
         by = group.set_index("geometry")
@@ -412,11 +412,11 @@ def curved_smooth_rates():
     return markdown_table(pd.DataFrame(rows))
 
 
-def curved_smooth():
-    t = pd.read_csv(RESULTS / "curved_smooth.csv")
+def curved_smooth(csv="curved_smooth.csv", extra=()):
+    t = pd.read_csv(RESULTS / csv)
     t = t[t.theta == -1].sort_values(["geometry", "nx"])
     return markdown_table(t[["geometry", "nx", "dofs", "l2_body2", "h1_body2", "dropped", "newton_iterations",
-                             "wall_s"]], digits=3)
+                             "wall_s", *extra]], digits=3)
 
 TABLES = {
     **{name: functools.partial(stamped_bench_table, name) for name in STAMPED_BENCH_TABLES},
@@ -463,6 +463,9 @@ TABLES = {
     "curved_patch": curved_patch,
     "curved_smooth_rates": curved_smooth_rates,
     "curved_smooth": curved_smooth,
+    "curved_patch_3d": functools.partial(curved_patch, "curved_patch_3d.csv", "volume_rel_err"),
+    "curved_smooth_3d_rates": functools.partial(curved_smooth_rates, "curved_smooth_3d_rates.csv"),
+    "curved_smooth_3d": functools.partial(curved_smooth, "curved_smooth_3d.csv", ("peak_rss_mb",)),
 }
 
 

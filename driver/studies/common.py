@@ -64,6 +64,16 @@ def cached_reference(folder, what, compute):
     return folder
 
 
+def saved_reference(case, overrides, folder, what):
+    """The run of `case` with `overrides` and its solution saved, in folder (a cached
+    reference: computed once)."""
+    def compute():
+        scene, module = load_scene(case, [*overrides, "output.save_solution=true"])
+        run_scene(scene, module, out_dir=folder, replace=True)
+
+    return cached_reference(folder, what, compute)
+
+
 def save_figure(fig, name, dpi=110, tight=True):
     """Write a study's figure to plots/NAME (the folder made if needed), close it, say so."""
     import matplotlib.pyplot as plt

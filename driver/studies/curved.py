@@ -12,11 +12,10 @@ import tomllib
 import numpy as np
 import pandas as pd
 
-from driver.runner import REPO, TOOLS_DIR, freefem_binary, parse_json_file, run_command, run_scene
-from driver.scene import load_scene
-from driver.studies.common import (RESULTS_DIR, cached_reference, loglog_slope, progress, run_point, save_figure,
-                                   tool_errors)
+from driver.runner import REPO, TOOLS_DIR, freefem_binary, parse_json_file, run_command
+from driver.studies.common import RESULTS_DIR, loglog_slope, progress, run_point, save_figure, saved_reference, tool_errors
 from driver.studies.fd2d import DISK, QUIET, REFERENCE_NX, reference, run_with_errors
+from driver.studies.fd3d import QUIET as QUIET_3D
 
 GEOMETRIES = ("p1", "curved")
 LADDER = (40, 80, 160)
@@ -26,9 +25,14 @@ PHASES = ("geometry", "assembly", "newton", "estimators", "all_steps")
 VERIFICATION = REPO / "cases" / "verification"
 CLAMPED_DISK = VERIFICATION / "clamped_disk.toml"
 HELD_RING = VERIFICATION / "held_ring.toml"
+CLAMPED_BALL = VERIFICATION / "clamped_ball.toml"
+HELD_SHELL = VERIFICATION / "held_shell.toml"
 PATCH_LADDER = (10, 20, 40, 80)
 SMOOTH_LADDER = (10, 20, 40, 80, 160)
 SMOOTH_REFERENCE_NX = 320
+PATCH_LADDER_3D = (6, 8, 12)
+SMOOTH_LADDER_3D = (8, 12, 16)
+SMOOTH_REFERENCE_NX_3D = 32
 SMOOTH_THETAS = (1.0, 0.0, -1.0)
 SMOOTH_RATE_MESHES = 3   # least squares on the finest three of the ladder
 
@@ -81,86 +85,115 @@ def convergence():
     print(f"wrote {RESULTS_DIR / 'curved_convergence.csv'}, {RESULTS_DIR / 'curved_cost.csv'}")
 
 
-def clamped_disk_exact(scene_path):
-    """The exact displacement of the clamped-disk scene at its probes, from the scene's
-    own data: u = f (R^2 - r^2)/(2 lambda + 6 mu), r the distance to the centre."""
+def clamped_exact(scene_path):
+    """The exact displacement of a clamped-ball scene (clamped_disk, clamped_ball) at its
+    probes, from the scene's own data: u = f (R^2 - r^2)/(2 lambda + (2 d + 2) mu) in
+    dimension d, r the distance to the centre."""
     scene = tomllib.loads(scene_path.read_text())
     body = scene["body2"]
     centre, radius = np.array(body["shape"]["centre"]), body["shape"]["radius"]
     force = np.array(body["body_force"])
-    factor = 1.0 / (2 * body["lambda"] + 6 * body["mu"])
+    factor = 1.0 / (2 * body["lambda"] + (2 * len(centre) + 2) * body["mu"])
     return {probe["name"]: force * factor * (radius ** 2 - np.sum((np.array(probe["point"]) - centre) ** 2))
             for probe in scene["probe"]}
 
 
-def smooth_reference(theta):
-    """The held ring, P2 at NX = SMOOTH_REFERENCE_NX on the curved geometry, saved."""
-    folder = REPO / "runs" / "reference" / f"held_ring_p2_nx{SMOOTH_REFERENCE_NX}_theta{theta:g}_curved"
-
-    def compute():
-        scene, module = load_scene(HELD_RING, [f"mesh.nx={SMOOTH_REFERENCE_NX}", f"method.theta={theta}",
-                                               "method.geometry=curved", "output.save_solution=true",
-                                               "output.estimators=false", *QUIET])
-        run_scene(scene, module, out_dir=folder, replace=True)
-
-    return cached_reference(folder, f"the held-ring reference (P2, NX = {SMOOTH_REFERENCE_NX}, theta = {theta:g})",
-                            compute)
-
-
-def smooth_problems():
-    """The patch test (clamped disk: probes against the exact quadratic, NX = 10..80) and
-    the held ring's ladder NX = 10..160 against its curved NX = 320 reference for every
-    theta, both geometries: results/curved_patch.csv, results/curved_smooth.csv,
-    results/curved_smooth_rates.csv, plots/curved_smooth.png."""
-    exact = clamped_disk_exact(CLAMPED_DISK)
+def patch_test(scene_path, ladder, csv, volume_key, quiet):
+    """The clamped scene on both geometries (quiet: the overrides that turn its output
+    files off): largest probe error relative to the largest exact displacement, and
+    body 2's area (2D) or volume (3D) error: RESULTS_DIR/csv."""
+    exact = clamped_exact(scene_path)
     scale = max(np.linalg.norm(u) for u in exact.values())
-    patch = []
-    grid = [(g, nx) for g in GEOMETRIES for nx in PATCH_LADDER]
+    rows = []
+    grid = [(g, nx) for g in GEOMETRIES for nx in ladder]
     for n, (geometry, nx) in enumerate(grid, start=1):
-        progress(n, len(grid), f"clamped disk, NX = {nx}, geometry {geometry}")
-        row, results, _ = run_point(CLAMPED_DISK, [f"mesh.nx={nx}", f"method.geometry={geometry}", *QUIET])
+        progress(n, len(grid), f"{scene_path.stem}, NX = {nx}, geometry {geometry}")
+        row, results, _ = run_point(scene_path, [f"mesh.nx={nx}", f"method.geometry={geometry}", *quiet])
         out = dict(geometry=geometry, nx=nx, status=row["status"])
         if results is not None:
             errors = {name: np.linalg.norm(np.array(results["probes"][name]) - u) / scale for name, u in exact.items()}
+            measure = results[volume_key]
             out.update({f"probe_err_{name}": e for name, e in errors.items()},
                        max_probe_err=max(errors.values()),
-                       area_rel_err=results["areas"]["body2"] / results["areas"]["body2_exact"] - 1,
-                       newton_iterations=results["newton"]["iterations"])
-        patch.append(out)
-    pd.DataFrame(patch).to_csv(RESULTS_DIR / "curved_patch.csv", index=False)
-
-    rows = []
-    grid = [(theta, g, nx) for theta in SMOOTH_THETAS for g in GEOMETRIES for nx in SMOOTH_LADDER]
-    for n, (theta, geometry, nx) in enumerate(grid, start=1):
-        ref = smooth_reference(theta)
-        progress(n, len(grid), f"held ring, theta = {theta:g}, NX = {nx}, geometry {geometry}")
-        row, results, folder = run_point(HELD_RING, [f"mesh.nx={nx}", f"method.theta={theta}",
-                                                     f"method.geometry={geometry}", "output.save_solution=true",
-                                                     "output.estimators=false", *QUIET])
-        out = dict(theta=theta, geometry=geometry, nx=nx, status=row["status"])
-        if results is not None:
-            err = tool_errors("fd_error_2d.edp", ref, folder)
-            out.update(h=results["h"], dofs=results["dofs"], l2_body2=err["l2_body2"], h1_body2=err["h1_body2"],
-                       area_rel_err=results["areas"]["body2"] / results["areas"]["body2_exact"] - 1,
-                       stabilization=results["cut"]["stabilization"], dropped=results["cut"]["dropped_body2"],
-                       points_in_reference_slivers=err["points_in_reference_slivers"]["body2"],
+                       **{f"{volume_key[:-1]}_rel_err": measure["body2"] / measure["body2_exact"] - 1},
                        newton_iterations=results["newton"]["iterations"], wall_s=row["wall_s"])
         rows.append(out)
+    pd.DataFrame(rows).to_csv(RESULTS_DIR / csv, index=False)
+
+
+def smooth_reference(scene_path, theta, nx, quiet):
+    """A held scene, P2 at NX = nx on the curved geometry, saved in runs/reference/."""
+    return saved_reference(scene_path, [f"mesh.nx={nx}", f"method.theta={theta}", "method.geometry=curved", *quiet],
+                           REPO / "runs" / "reference" / f"{scene_path.stem}_p2_nx{nx}_theta{theta:g}_curved",
+                           f"the {scene_path.stem} reference (P2, NX = {nx}, theta = {theta:g})")
+
+
+def smooth_ladder(scene_path, thetas, ladder, reference_nx, quiet, tool, body2_errors, volume_key, csv, rates_csv):
+    """A held scene's ladder for each theta and both geometries against its curved
+    reference (quiet: the overrides that turn output files and estimators off; tool: the
+    error script; body2_errors(errors.json) -> (L2, H1) of body 2, relative; volume_key:
+    results.json's areas or volumes), and its rates on the finest SMOOTH_RATE_MESHES
+    meshes."""
+    rows = []
+    grid = [(theta, g, nx) for theta in thetas for g in GEOMETRIES for nx in ladder]
+    for n, (theta, geometry, nx) in enumerate(grid, start=1):
+        ref = smooth_reference(scene_path, theta, reference_nx, quiet)
+        progress(n, len(grid), f"{scene_path.stem}, theta = {theta:g}, NX = {nx}, geometry {geometry}")
+        row, results, folder = run_point(scene_path, [f"mesh.nx={nx}", f"method.theta={theta}",
+                                                      f"method.geometry={geometry}", "output.save_solution=true",
+                                                      *quiet])
+        out = dict(theta=theta, geometry=geometry, nx=nx, status=row["status"])
+        if results is not None:
+            l2, h1 = body2_errors(tool_errors(tool, ref, folder))
+            measure = results[volume_key]
+            out.update(h=results["h"], dofs=results["dofs"], l2_body2=l2, h1_body2=h1,
+                       **{f"{volume_key[:-1]}_rel_err": measure["body2"] / measure["body2_exact"] - 1},
+                       stabilization=results["cut"]["stabilization"], dropped=results["cut"]["dropped_body2"],
+                       newton_iterations=results["newton"]["iterations"], wall_s=row["wall_s"],
+                       peak_rss_mb=results.get("peak_rss_mb"))
+        rows.append(out)
     table = pd.DataFrame(rows)
-    table.to_csv(RESULTS_DIR / "curved_smooth.csv", index=False)
+    table.to_csv(RESULTS_DIR / csv, index=False)
     rates = []
     for (theta, geometry), group in table[table.status == "converged"].groupby(["theta", "geometry"], sort=False):
         finest = group.sort_values("h").iloc[:SMOOTH_RATE_MESHES]
         rates.append(dict(theta=theta, geometry=geometry, nx_used=" ".join(str(int(v)) for v in sorted(finest.nx)),
                           l2_rate=loglog_slope(finest.h, finest.l2_body2),
                           h1_rate=loglog_slope(finest.h, finest.h1_body2)))
-    pd.DataFrame(rates).to_csv(RESULTS_DIR / "curved_smooth_rates.csv", index=False)
-    plot_smooth(table)
+    pd.DataFrame(rates).to_csv(RESULTS_DIR / rates_csv, index=False)
+    return table
+
+
+def smooth_problems():
+    """2D: the patch test (clamped disk: probes against the exact quadratic, NX = 10..80)
+    and the held ring's ladder NX = 10..160 against its curved NX = 320 reference for
+    every theta, both geometries: results/curved_patch.csv, results/curved_smooth.csv,
+    results/curved_smooth_rates.csv, plots/curved_smooth.png."""
+    patch_test(CLAMPED_DISK, PATCH_LADDER, "curved_patch.csv", "areas", QUIET)
+    table = smooth_ladder(HELD_RING, SMOOTH_THETAS, SMOOTH_LADDER, SMOOTH_REFERENCE_NX,
+                          [*QUIET, "output.estimators=false"], "fd_error_2d.edp",
+                          lambda e: (e["l2_body2"], e["h1_body2"]), "areas", "curved_smooth.csv",
+                          "curved_smooth_rates.csv")
+    plot_smooth(table, "held ring", "curved_smooth.png", "curved-smooth")
     print(f"wrote {RESULTS_DIR / 'curved_patch.csv'}, {RESULTS_DIR / 'curved_smooth.csv'}, "
           f"{RESULTS_DIR / 'curved_smooth_rates.csv'}")
 
 
-def plot_smooth(table):
+def smooth_problems_3d():
+    """3D, P2, theta = -1: the patch test (clamped ball, nx = 6, 8, 12) and the held
+    shell's ladder nx = 8, 12, 16 against its curved nx = 32 reference, both geometries:
+    results/curved_patch_3d.csv, results/curved_smooth_3d.csv,
+    results/curved_smooth_3d_rates.csv, plots/curved_smooth_3d.png."""
+    patch_test(CLAMPED_BALL, PATCH_LADDER_3D, "curved_patch_3d.csv", "volumes", QUIET_3D)
+    table = smooth_ladder(HELD_SHELL, (-1.0,), SMOOTH_LADDER_3D, SMOOTH_REFERENCE_NX_3D, QUIET_3D, "fd_error_3d.edp",
+                          lambda e: (e["body2"]["l2_rel"], e["body2"]["h1_rel"]), "volumes", "curved_smooth_3d.csv",
+                          "curved_smooth_3d_rates.csv")
+    plot_smooth(table, "held shell", "curved_smooth_3d.png", "fd3d-curved-smooth")
+    print(f"wrote {RESULTS_DIR / 'curved_patch_3d.csv'}, {RESULTS_DIR / 'curved_smooth_3d.csv'}, "
+          f"{RESULTS_DIR / 'curved_smooth_3d_rates.csv'}")
+
+
+def plot_smooth(table, what, name, study):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -176,8 +209,8 @@ def plot_smooth(table):
         anchor = ok[(ok.geometry == "curved") & (ok.h == h[0])][f"{norm}_body2"].max()
         ax.loglog(h, anchor * (h / h[0]) ** order, "k:", label=f"h^{order}")
         ax.set_xlabel("h")
-        ax.set_title(f"held ring, P2: relative {norm.upper()} error")
+        ax.set_title(f"{what}, P2: relative {norm.upper()} error")
         ax.grid(True, which="both", alpha=0.3)
     axes[0].legend(fontsize=8)
-    fig.suptitle("python -m driver study curved-smooth", fontsize=9)
-    save_figure(fig, "curved_smooth.png")
+    fig.suptitle(f"python -m driver study {study}", fontsize=9)
+    save_figure(fig, name)

@@ -13,10 +13,9 @@ import numpy as np
 import pandas as pd
 
 from driver.errors import DriverError
-from driver.runner import REPO, run_command, run_freefem_tool, run_scene
-from driver.scene import load_scene
+from driver.runner import REPO, run_command, run_freefem_tool
 from driver.studies.common import (cached_reference, loglog_slope, markdown_table, progress, RESULTS_DIR, run_point,
-                                   save_figure, tool_errors)
+                                   save_figure, saved_reference, tool_errors)
 from driver.sweep import file_digest, run_points, task_point
 
 DISK = REPO / "cases" / "disk_on_slab.toml"
@@ -40,14 +39,9 @@ SEED_RATES = {
 
 def reference(nx=REFERENCE_NX, geometry="curved"):
     """P2, theta = -1, gamma0 = 1/200 at NX = nx on the given cut geometry."""
-    folder = REPO / "runs" / "reference" / f"disk_on_slab_p2_nx{nx}_{geometry}"
-
-    def compute():
-        scene, module = load_scene(DISK, [f"mesh.nx={nx}", f"method.geometry={geometry}", "output.save_solution=true",
-                                          "output.estimators=false", *QUIET])
-        run_scene(scene, module, out_dir=folder, replace=True)
-
-    return cached_reference(folder, f"the disk-on-slab reference (P2, NX = {nx}, {geometry} geometry)", compute)
+    return saved_reference(DISK, [f"mesh.nx={nx}", f"method.geometry={geometry}", "output.estimators=false", *QUIET],
+                           REPO / "runs" / "reference" / f"disk_on_slab_p2_nx{nx}_{geometry}",
+                           f"the disk-on-slab reference (P2, NX = {nx}, {geometry} geometry)")
 
 
 def errors_against(ref, run_folder):
