@@ -64,6 +64,8 @@
                                  // interpreted construction's to the bit
 
 #include <cmath>
+#include <tuple>
+#include <utility>
 #include <vector>
 
 namespace {
@@ -99,6 +101,49 @@ class LevelSet {
     Stack stack_;
     Expression phi_;
     MeshPoint *mp_;
+};
+
+// FreeFEM's plugin idiom, written once for the functions below. The script passes
+// arguments of the types Args... and, last, the level set (an expression of x and y).
+// The types are listed once, so overload resolution (typeargs) and conversion (the
+// constructor) cannot disagree. A call saves FreeFEM's current point, which the level
+// set moves, runs Derived::evaluate(stack, levelSet) and restores the point on every
+// return path.
+typedef KN<double> *Reals;   // a script's real[int]
+
+template <class Derived, class... Args>
+class LevelSetFunction : public E_F0mps {
+  public:
+    typedef long Result;
+    explicit LevelSetFunction(const basicAC_F0 &args) {
+        args.SetNameParam();
+        bind(args, std::index_sequence_for<Args...>());
+    }
+    static ArrayOfaType typeargs() { return ArrayOfaType(atype<Args>()..., atype<double>()); }
+    static E_F0 *f(const basicAC_F0 &args) { return new Derived(args); }
+
+    AnyType operator()(Stack stack) const {
+        MeshPoint *mp = MeshPointStack(stack), saved = *mp;
+        long result = static_cast<const Derived *>(this)->evaluate(stack, LevelSet(stack, phi_));
+        *mp = saved;
+        return result;
+    }
+
+  protected:
+    // Argument I, evaluated (its type is the I-th of Args).
+    template <size_t I>
+    std::tuple_element_t<I, std::tuple<Args...>> arg(Stack stack) const {
+        return GetAny<std::tuple_element_t<I, std::tuple<Args...>>>((*args_[I])(stack));
+    }
+
+  private:
+    template <size_t... I>
+    void bind(const basicAC_F0 &args, std::index_sequence<I...>) {
+        Expression bound[] = {to<Args>(args[I])...};
+        for (size_t i = 0; i < sizeof...(Args); i++) args_[i] = bound[i];
+        phi_ = to<double>(args[sizeof...(Args)]);
+    }
+    Expression args_[sizeof...(Args)], phi_;
 };
 
 // Root lam in [lo, hi] of sgn phi(X0 + lam D), from lam0: the rule of core/line_rules.idp
@@ -324,38 +369,19 @@ double cutCell(const LevelSet &phi, const Rules &q, const double *cell, Points &
     return areaK;
 }
 
-class CurvedCellRules : public E_F0mps {
+class CurvedCellRules : public LevelSetFunction<CurvedCellRules, Reals, Reals, Reals, Reals, Reals, Reals> {
   public:
-    typedef long Result;
-    Expression cells, rules, ratio, inBody, volume, interface, phi;
+    using LevelSetFunction::LevelSetFunction;
 
-    explicit CurvedCellRules(const basicAC_F0 &args) {
-        args.SetNameParam();
-        cells = to<KN<double> *>(args[0]);
-        rules = to<KN<double> *>(args[1]);
-        ratio = to<KN<double> *>(args[2]);
-        inBody = to<KN<double> *>(args[3]);
-        volume = to<KN<double> *>(args[4]);
-        interface = to<KN<double> *>(args[5]);
-        phi = to<double>(args[6]);
-    }
-    static ArrayOfaType typeargs() {
-        return ArrayOfaType(atype<KN<double> *>(), atype<KN<double> *>(), atype<KN<double> *>(),
-                            atype<KN<double> *>(), atype<KN<double> *>(), atype<KN<double> *>(), atype<double>());
-    }
-    static E_F0 *f(const basicAC_F0 &args) { return new CurvedCellRules(args); }
-
-    AnyType operator()(Stack stack) const {
-        KN<double> &cellData = *GetAny<KN<double> *>((*cells)(stack));
-        KN<double> &ruleData = *GetAny<KN<double> *>((*rules)(stack));
-        KN<double> &ratioK = *GetAny<KN<double> *>((*ratio)(stack));
-        KN<double> &inBodyK = *GetAny<KN<double> *>((*inBody)(stack));
-        KN<double> &volumeOut = *GetAny<KN<double> *>((*volume)(stack));
-        KN<double> &interfaceOut = *GetAny<KN<double> *>((*interface)(stack));
+    long evaluate(Stack stack, const LevelSet &levelSet) const {
+        KN<double> &cellData = *arg<0>(stack);
+        KN<double> &ruleData = *arg<1>(stack);
+        KN<double> &ratioK = *arg<2>(stack);
+        KN<double> &inBodyK = *arg<3>(stack);
+        KN<double> &volumeOut = *arg<4>(stack);
+        KN<double> &interfaceOut = *arg<5>(stack);
         Rules q;
         if (!q.read(ruleData) || cellData.N() % 10 != 0) return -1L;
-        MeshPoint *mp = MeshPointStack(stack), saved = *mp;
-        LevelSet levelSet(stack, phi);
         Points vol, itf;
         long fallbacks = 0;
         long nCells = cellData.N() / 10;
@@ -369,7 +395,6 @@ class CurvedCellRules : public E_F0mps {
             ratioK[k] = std::min(area / areaK, 1.);
             inBodyK[k] = (area > 0);
         }
-        *mp = saved;
         vol.copyTo(volumeOut);
         itf.copyTo(interfaceOut);
         return fallbacks;
@@ -381,42 +406,22 @@ class CurvedCellRules : public E_F0mps {
 // shared by the elements it is added to, with its Gauss points and what each point
 // reads (the R_rho elements of its two sides, whether it is interior, the edge's
 // normal, the traction data of the box face it lies on).
-class CutEdgePieces : public E_F0mps {
+class CutEdgePieces
+    : public LevelSetFunction<CutEdgePieces, pmesh, Reals, Reals, Reals, Reals, Reals, long, Reals, KN<long> *, Reals> {
   public:
-    typedef long Result;
-    Expression mesh, phiV, segK, chBg, faces, rule, exact, points, entryPoint, entryElement, phi;
+    using LevelSetFunction::LevelSetFunction;
 
-    explicit CutEdgePieces(const basicAC_F0 &args) {
-        args.SetNameParam();
-        mesh = to<pmesh>(args[0]);
-        phiV = to<KN<double> *>(args[1]);
-        segK = to<KN<double> *>(args[2]);
-        chBg = to<KN<double> *>(args[3]);
-        faces = to<KN<double> *>(args[4]);
-        rule = to<KN<double> *>(args[5]);
-        exact = to<long>(args[6]);
-        points = to<KN<double> *>(args[7]);
-        entryPoint = to<KN<long> *>(args[8]);
-        entryElement = to<KN<double> *>(args[9]);
-        phi = to<double>(args[10]);
-    }
-    static ArrayOfaType typeargs() {
-        aType r = atype<KN<double> *>();
-        return ArrayOfaType(atype<pmesh>(), r, r, r, r, r, atype<long>(), r, atype<KN<long> *>(), r, atype<double>());
-    }
-    static E_F0 *f(const basicAC_F0 &args) { return new CutEdgePieces(args); }
-
-    AnyType operator()(Stack stack) const {
-        const Mesh &Th = *GetAny<pmesh>((*mesh)(stack));
-        const KN<double> &phiBg = *GetAny<KN<double> *>((*phiV)(stack));
-        const KN<double> &cut = *GetAny<KN<double> *>((*segK)(stack));
-        const KN<double> &chosen = *GetAny<KN<double> *>((*chBg)(stack));
-        const KN<double> &faceData = *GetAny<KN<double> *>((*faces)(stack));
-        const KN<double> &gauss = *GetAny<KN<double> *>((*rule)(stack));
-        bool onExact = GetAny<long>((*exact)(stack)) != 0;
-        KN<double> &pointsOut = *GetAny<KN<double> *>((*points)(stack));
-        KN<long> &entryPointOut = *GetAny<KN<long> *>((*entryPoint)(stack));
-        KN<double> &entryElementOut = *GetAny<KN<double> *>((*entryElement)(stack));
+    long evaluate(Stack stack, const LevelSet &levelSet) const {
+        const Mesh &Th = *arg<0>(stack);
+        const KN<double> &phiBg = *arg<1>(stack);
+        const KN<double> &cut = *arg<2>(stack);
+        const KN<double> &chosen = *arg<3>(stack);
+        const KN<double> &faceData = *arg<4>(stack);
+        const KN<double> &gauss = *arg<5>(stack);
+        bool onExact = arg<6>(stack) != 0;
+        KN<double> &pointsOut = *arg<7>(stack);
+        KN<long> &entryPointOut = *arg<8>(stack);
+        KN<double> &entryElementOut = *arg<9>(stack);
         if (gauss.N() < 1) return -1L;
         int nG = lround(gauss[0]);
         if (nG < 1 || gauss.N() != 1 + 2 * nG || phiBg.N() != Th.nv || chosen.N() != Th.nt || faceData.N() != 25)
@@ -434,8 +439,6 @@ class CutEdgePieces : public E_F0mps {
         };
         for (long s = 0; s < cut.N(); s++)
             if (!(cut[s] >= 0 && cut[s] < Th.nt)) return -1L;
-        MeshPoint *mp = MeshPointStack(stack), saved = *mp;
-        LevelSet levelSet(stack, phi);
         std::vector<char> isCut(Th.nt, 0);
         for (long s = 0; s < cut.N(); s++) isCut[lround(cut[s])] = 1;
         std::vector<long> pieceOf(3 * Th.nt, -1);
@@ -481,7 +484,6 @@ class CutEdgePieces : public E_F0mps {
                 if (inner && !isCut[kk]) { entryP.push_back(piece); entryK.push_back(kk); }   // its side too
             }
         }
-        *mp = saved;
         // the pieces' Gauss points (fd2d/levelset.idp lsSegmentQuadrature), 10 blocks:
         // x, y, w, then per point sa, sb, inner, nx, ny, tx, ty
         long nq = pieces.size() * nG;
@@ -554,41 +556,22 @@ void project(const LevelSet &phi, double px, double py, double step, double &qx,
 
 // The contact points' geometry (fd2d/contact.idp nitscheContactGeometry, which states
 // it): projections onto body 2's level set, gaps, normals and gamma.
-class ContactPointGeometry : public E_F0mps {
+class ContactPointGeometry : public LevelSetFunction<ContactPointGeometry, Reals, Reals, Reals, Reals, Reals, Reals> {
   public:
-    typedef long Result;
-    Expression px, py, pk, hK, params, out, phi;
+    using LevelSetFunction::LevelSetFunction;
 
-    explicit ContactPointGeometry(const basicAC_F0 &args) {
-        args.SetNameParam();
-        px = to<KN<double> *>(args[0]);
-        py = to<KN<double> *>(args[1]);
-        pk = to<KN<double> *>(args[2]);
-        hK = to<KN<double> *>(args[3]);
-        params = to<KN<double> *>(args[4]);
-        out = to<KN<double> *>(args[5]);
-        phi = to<double>(args[6]);
-    }
-    static ArrayOfaType typeargs() {
-        aType r = atype<KN<double> *>();
-        return ArrayOfaType(r, r, r, r, r, r, atype<double>());
-    }
-    static E_F0 *f(const basicAC_F0 &args) { return new ContactPointGeometry(args); }
-
-    AnyType operator()(Stack stack) const {
-        const KN<double> &x = *GetAny<KN<double> *>((*px)(stack));
-        const KN<double> &y = *GetAny<KN<double> *>((*py)(stack));
-        const KN<double> &k = *GetAny<KN<double> *>((*pk)(stack));
-        const KN<double> &h = *GetAny<KN<double> *>((*hK)(stack));
-        const KN<double> &p = *GetAny<KN<double> *>((*params)(stack));
-        KN<double> &o = *GetAny<KN<double> *>((*out)(stack));
+    long evaluate(Stack stack, const LevelSet &levelSet) const {
+        const KN<double> &x = *arg<0>(stack);
+        const KN<double> &y = *arg<1>(stack);
+        const KN<double> &k = *arg<2>(stack);
+        const KN<double> &h = *arg<3>(stack);
+        const KN<double> &p = *arg<4>(stack);
+        KN<double> &o = *arg<5>(stack);
         long n = x.N();
         if (y.N() != n || k.N() != n || p.N() != 3) return -1L;
         for (long q = 0; q < n; q++)
             if (!(k[q] >= 0 && k[q] < h.N())) return -1L;
         double gamma0 = p[0], step = p[1], shiftIn = p[2];
-        MeshPoint *mp = MeshPointStack(stack), saved = *mp;
-        LevelSet levelSet(stack, phi);
         o.resize(6 * n);
         for (long q = 0; q < n; q++) {
             double fx, fy, gx, gy;
@@ -602,41 +585,23 @@ class ContactPointGeometry : public E_F0mps {
             o[4 * n + q] = fx - shiftIn * hq * nx;
             o[5 * n + q] = fy - shiftIn * hq * ny;
         }
-        *mp = saved;
         return n;
     }
 };
 
 // Unit normals grad phi/|grad phi| at points (fd2d/levelset.idp lsGradient's central
 // differences): the cut boundaries' normals of the Nitsche holds and the estimators.
-class LevelSetNormals : public E_F0mps {
+class LevelSetNormals : public LevelSetFunction<LevelSetNormals, Reals, Reals, double, Reals> {
   public:
-    typedef long Result;
-    Expression px, py, step, out, phi;
+    using LevelSetFunction::LevelSetFunction;
 
-    explicit LevelSetNormals(const basicAC_F0 &args) {
-        args.SetNameParam();
-        px = to<KN<double> *>(args[0]);
-        py = to<KN<double> *>(args[1]);
-        step = to<double>(args[2]);
-        out = to<KN<double> *>(args[3]);
-        phi = to<double>(args[4]);
-    }
-    static ArrayOfaType typeargs() {
-        aType r = atype<KN<double> *>();
-        return ArrayOfaType(r, r, atype<double>(), r, atype<double>());
-    }
-    static E_F0 *f(const basicAC_F0 &args) { return new LevelSetNormals(args); }
-
-    AnyType operator()(Stack stack) const {
-        const KN<double> &x = *GetAny<KN<double> *>((*px)(stack));
-        const KN<double> &y = *GetAny<KN<double> *>((*py)(stack));
-        double h = GetAny<double>((*step)(stack));
-        KN<double> &o = *GetAny<KN<double> *>((*out)(stack));
+    long evaluate(Stack stack, const LevelSet &levelSet) const {
+        const KN<double> &x = *arg<0>(stack);
+        const KN<double> &y = *arg<1>(stack);
+        double h = arg<2>(stack);
+        KN<double> &o = *arg<3>(stack);
         long n = x.N();
         if (y.N() != n || !(h > 0)) return -1L;
-        MeshPoint *mp = MeshPointStack(stack), saved = *mp;
-        LevelSet levelSet(stack, phi);
         o.resize(2 * n);
         for (long q = 0; q < n; q++) {
             double gx, gy;
@@ -645,7 +610,6 @@ class LevelSetNormals : public E_F0mps {
             o[q] = gx / gn;
             o[n + q] = gy / gn;
         }
-        *mp = saved;
         return n;
     }
 };
