@@ -30,6 +30,27 @@ def run_freefem(script, *args, env=None):
                           cwd=REPO, env=env, capture_output=True, text=True)
 
 
+def saved_run(case, folder, *overrides):
+    """python -m driver run CASE --out FOLDER with the solution saved (what the error
+    tools read) and no VTU, overrides as 'key=value'; fails the test with the driver's
+    message."""
+    args = ["run", str(case), "--out", str(folder), "--set", "output.save_solution=true", "--set", "output.vtu=false"]
+    for item in overrides:
+        args += ["--set", item]
+    proc = run_cli(*args)
+    assert proc.returncode == 0, proc.stderr
+    return folder
+
+
+def tool_errors(tool, ref, run, *extra, out=None):
+    """The errors.json that freefem/tools/TOOL (fd_error_2d.edp, fd_error_3d.edp) writes
+    for RUN against REF (default path: RUN/errors.json), extra flags after them."""
+    out = out or Path(run) / "errors.json"
+    proc = run_freefem(f"tools/{tool}", "-ref", ref, "-run", run, "-out", out, *extra)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return json.loads(Path(out).read_text())
+
+
 class Run:
     def __init__(self, folder):
         self.folder = Path(folder)

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tests.conftest import REPO, run_cli, run_freefem
+from tests.conftest import REPO, run_freefem, saved_run, tool_errors
 
 # Disk-centre u_y of the disk on slab, P2, theta = -1, gamma0 = 1/200, curved geometry,
 # NX = 320 (make curved-study, results/curved_convergence.csv).
@@ -207,17 +207,7 @@ def test_clamped_ball_holds_its_exact_quadratic(run_scene, geometry, low, high):
 
 
 def saved_ring(folder, nx):
-    proc = run_cli("run", HELD_RING, "--out", str(folder), "--set", f"mesh.nx={nx}",
-                   "--set", "output.save_solution=true", "--set", "output.estimators=false")
-    assert proc.returncode == 0, proc.stderr
-    return folder
-
-
-def ring_errors(ref, run):
-    out = run / f"errors_{ref.name}.json"
-    proc = run_freefem("tools/fd_error_2d.edp", "-ref", ref, "-run", run, "-out", out)
-    assert proc.returncode == 0, proc.stdout[-2000:]
-    return json.loads(out.read_text())
+    return saved_run(HELD_RING, folder, f"mesh.nx={nx}", "output.estimators=false")
 
 
 @pytest.fixture(scope="module")
@@ -225,7 +215,7 @@ def ring_ladder(tmp_path_factory):
     base = tmp_path_factory.mktemp("held_ring")
     ref = saved_ring(base / "ref", 160)
     runs = {nx: saved_ring(base / f"nx{nx}", nx) for nx in RING_LADDER}
-    return ref, runs, {nx: ring_errors(ref, run) for nx, run in runs.items()}
+    return ref, runs, {nx: tool_errors("fd_error_2d.edp", ref, run) for nx, run in runs.items()}
 
 
 @pytest.mark.parametrize("norm, bound", [("l2", 2.8), ("h1", 1.8)])
@@ -247,6 +237,6 @@ def test_error_tool_extends_the_references_own_slivers(ring_ladder):
     polynomial from the nearest kept element, as the solver does, so a run compared with
     itself has no error although it dropped slivers."""
     _, runs, _ = ring_ladder
-    same = ring_errors(runs[80], runs[80])
+    same = tool_errors("fd_error_2d.edp", runs[80], runs[80], out=runs[80] / "errors_self.json")
     assert same["points_in_reference_slivers"]["body2"] > 0
     assert max(same[k] for k in ("l2_body1", "l2_body2", "h1_body1", "h1_body2")) < 1e-12

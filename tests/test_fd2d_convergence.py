@@ -6,43 +6,28 @@ NX = 320): a three-point ladder against a reference only twice finer than its
 last point is less regular.
 """
 
-import json
-
 import numpy as np
 import pytest
 
-from conftest import run_cli, run_freefem
+from conftest import saved_run, tool_errors
 
 DISK = "cases/disk_on_slab.toml"
 LADDER = (20, 40, 80)
 BOUNDS = {("h1", 1): 0.8, ("h1", 2): 1.2, ("l2", 1): 1.5, ("l2", 2): 1.5}
 
 
-def saved_run(folder, *overrides):
-    args = ["run", DISK, "--out", str(folder), "--set", "output.save_solution=true",
-            "--set", "output.vtu=false"]
-    for item in overrides:
-        args += ["--set", item]
-    proc = run_cli(*args)
-    assert proc.returncode == 0, proc.stderr
-    return folder
-
-
 def errors(ref, run, *extra):
-    out = run / "errors.json"
-    proc = run_freefem("tools/fd_error_2d.edp", "-ref", ref, "-run", run, "-out", out, *extra)
-    assert proc.returncode == 0, proc.stdout[-2000:]
-    return json.loads(out.read_text())
+    return tool_errors("fd_error_2d.edp", ref, run, *extra)
 
 
 @pytest.fixture(scope="module")
 def ladder(tmp_path_factory):
     base = tmp_path_factory.mktemp("fd2d_ladder")
-    ref = saved_run(base / "ref", "mesh.nx=160")
+    ref = saved_run(DISK, base / "ref", "mesh.nx=160")
     table = {}
     for degree in (1, 2):
         for nx in LADDER:
-            run = saved_run(base / f"p{degree}_nx{nx}", f"mesh.nx={nx}", f"method.degree={degree}")
+            run = saved_run(DISK, base / f"p{degree}_nx{nx}", f"mesh.nx={nx}", f"method.degree={degree}")
             table[degree, nx] = errors(ref, run)
     return table
 
@@ -60,7 +45,7 @@ def test_rates_of_small_ladder(ladder, degree, norm, body):
 
 def test_error_routine_self_checks(ladder, tmp_path):
     # Compared with itself the error is zero; shifted by c it is |c| |Omega_i|^(1/2) / ||u_ref||.
-    run = saved_run(tmp_path / "self", "mesh.nx=20")
+    run = saved_run(DISK, tmp_path / "self", "mesh.nx=20")
     same = errors(run, run)
     assert max(same[k] for k in ("l2_body1", "l2_body2", "h1_body1", "h1_body2")) < 1e-12
     c = np.array([1e-3, 2e-3])

@@ -9,7 +9,7 @@ import math
 
 import pytest
 
-from tests.conftest import run_freefem
+from tests.conftest import run_freefem, tool_errors
 
 SHIFT = (1e-3, 0.0, -2e-3)
 
@@ -22,9 +22,7 @@ def solve(folder, nx, geometry="curved"):
 
 
 def errors(ref, run, out, *extra):
-    proc = run_freefem("tools/fd_error_3d.edp", "-ref", ref, "-run", run, "-out", out, *extra)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    return json.loads(out.read_text())
+    return tool_errors("fd_error_3d.edp", ref, run, *extra, out=out)
 
 
 @pytest.fixture(scope="module")
