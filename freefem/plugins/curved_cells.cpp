@@ -71,6 +71,7 @@
 namespace {
 
 const int kDepthMax = 2;   // a failing cell is split into four, twice at most
+const double kCrossingShiftMax = 0.25;   // of an edge: exact against P1 crossing, beyond it a cell fails
 
 struct Points {
     std::vector<double> x, y, w, k;
@@ -247,7 +248,10 @@ bool ruledMap(const LevelSet &phi, const Rules &q, const double *X, const double
         double sgn = (nNeg == 1) ? 1. : -1.;   // negative at o
         bool okA = lineRoot(phi, ox, oy, ax - ox, ay - oy, sgn, 0., 1., ta, fTol, tA);
         bool okB = lineRoot(phi, ox, oy, bx - ox, by - oy, sgn, 0., 1., tb, fTol, tB);
-        ok = okA && okB;
+        // An exact crossing far from the P1 one: the vertex values misread the cut (an
+        // edge nearly tangent to the interface, a vertex next to it), and the rays from
+        // this base all run along one edge. Left to the split into four.
+        ok = okA && okB && fabs(tA - ta) <= kCrossingShiftMax && fabs(tB - tb) <= kCrossingShiftMax;
         // a vertex on the interface: crossings kept 1e-10 of the edge off the vertices
         tA = std::min(std::max(tA, 1e-10), 1. - 1e-10);
         tB = std::min(std::max(tB, 1e-10), 1. - 1e-10);
