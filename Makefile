@@ -157,10 +157,11 @@ scenes-study: setup
 # accuracy, disk-on-slab convergence against a curved P2 NX = 320 reference
 # (computed once into runs/reference/), cost of the NX = 80 run, and the smooth
 # problems of cases/verification/ (a patch test with an exact quadratic, the held
-# ring's ladder against its own NX = 320 references).
+# ring's ladder against its own NX = 320 references), and the disk on slab on
+# estimator-adapted meshes against the same reference (results/curved_adaptive.csv).
 .PHONY: curved-study
 curved-study: setup
-	$(PYTHON) -m driver study curved-geometry curved-convergence curved-smooth
+	$(PYTHON) -m driver study curved-geometry curved-convergence curved-smooth curved-adaptive
 	$(PYTHON) -m driver readme
 
 .PHONY: fd3d-study

@@ -412,6 +412,16 @@ def curved_smooth_rates(csv="curved_smooth_rates.csv"):
     return markdown_table(pd.DataFrame(rows))
 
 
+def curved_adaptive():
+    """The disk on slab's errors per DOFs, uniform curved ladder and adaptive loop."""
+    t = pd.read_csv(RESULTS / "curved_adaptive.csv")
+    rows = [{"mode": r.mode, "nx": r.nx, "step": r.step, "dofs": r.dofs,
+             "L2 disk": f"{r.l2_body1:.2e}", "L2 slab": f"{r.l2_body2:.2e}",
+             "H1 disk": f"{r.h1_body1:.2e}", "H1 slab": f"{r.h1_body2:.2e}",
+             "disk area": f"{r.area_rel_err:.1e}"} for r in t.itertuples()]
+    return markdown_table(pd.DataFrame(rows))
+
+
 def curved_smooth(csv="curved_smooth.csv", extra=()):
     t = pd.read_csv(RESULTS / csv)
     t = t[t.theta == -1].sort_values(["geometry", "nx"])
@@ -463,6 +473,7 @@ TABLES = {
     "curved_patch": curved_patch,
     "curved_smooth_rates": curved_smooth_rates,
     "curved_smooth": curved_smooth,
+    "curved_adaptive": curved_adaptive,
     "curved_patch_3d": functools.partial(curved_patch, "curved_patch_3d.csv", "volume_rel_err"),
     "curved_smooth_3d_rates": functools.partial(curved_smooth_rates, "curved_smooth_3d_rates.csv"),
     "curved_smooth_3d": functools.partial(curved_smooth, "curved_smooth_3d.csv", ("peak_rss_mb",)),

@@ -33,6 +33,7 @@ REGISTRY = {
     "curved-geometry": ("curved", "geometry_check"),
     "curved-convergence": ("curved", "convergence"),
     "curved-smooth": ("curved", "smooth_problems"),
+    "curved-adaptive": ("curved", "adaptive"),
     "fd3d-curved-smooth": ("curved", "smooth_problems_3d"),
     "bench": ("bench", "bench"),
     "bench-newton": ("bench", "newton_grid"),
