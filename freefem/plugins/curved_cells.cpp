@@ -231,6 +231,13 @@ void wholeTriangle(const Rules &q, const double *X, const double *Y, double area
     }
 }
 
+// grad phi by central differences of half-width step: the one gradient of the exact
+// level set (the interface's slopes, the projections, the normals).
+void gradient(const LevelSet &phi, double px, double py, double step, double &gx, double &gy) {
+    gx = (phi(px + step, py) - phi(px - step, py)) / (2. * step);
+    gy = (phi(px, py + step) - phi(px, py - step)) / (2. * step);
+}
+
 // One pass of the ruled map on a cut (sub)triangle: exact = the interface of phi,
 // else the P1 cut (rho = 1). Returns false (and writes nothing) where a root search
 // fails or the Jacobian changes sign.
@@ -297,8 +304,8 @@ bool ruledMap(const LevelSet &phi, const Rules &q, const double *X, const double
             double back = exitParameter(ox, oy, ax, ay, bx, by, px, py, -nx, -ny);
             if (!lineRoot(phi, px, py, nx, ny, 1., -back, fwd, 0., fTol, sig)) { ok = false; break; }
             double cx = px + sig * nx, cy = py + sig * ny;
-            double gx = (phi(cx + step, cy) - phi(cx - step, cy)) / (2. * step);
-            double gy = (phi(cx, cy + step) - phi(cx, cy - step)) / (2. * step);
+            double gx, gy;
+            gradient(phi, cx, cy, step, gx, gy);
             double gn = gx * nx + gy * ny;
             if (gn <= 0.1 * sqrt(sq(gx) + sq(gy))) { ok = false; break; }   // not a graph over the chord
             sp = -(gx * lx + gy * ly) / gn;
@@ -515,13 +522,6 @@ class CutEdgePieces
         return (long)pieces.size();
     }
 };
-
-// grad phi by central differences of half-width step: the script's gradient of the
-// exact level set (every caller is compiled: the projections, the normals).
-void gradient(const LevelSet &phi, double px, double py, double step, double &gx, double &gy) {
-    gx = (phi(px + step, py) - phi(px - step, py)) / (2. * step);
-    gy = (phi(px, py + step) - phi(px, py - step)) / (2. * step);
-}
 
 void projectNormal(const LevelSet &phi, double &qx, double &qy, double step) {
     for (int it = 0; it < 3; it++) {
