@@ -12,10 +12,9 @@ import tomllib
 import numpy as np
 import pandas as pd
 
-from driver.errors import DriverError
 from driver.runner import REPO, TOOLS_DIR, freefem_binary, parse_json_file, run_command
 from driver.studies.common import RESULTS_DIR, loglog_slope, progress, run_point, save_figure, saved_reference, tool_errors
-from driver.studies.fd2d import DISK, QUIET, REFERENCE_NX, reference, run_with_errors
+from driver.studies.fd2d import DISK, QUIET, REFERENCE_NX, adaptive_rows, reference, run_with_errors
 from driver.studies.fd3d import QUIET as QUIET_3D
 
 GEOMETRIES = ("p1", "curved")
@@ -90,39 +89,20 @@ ADAPT_START_NX, ADAPT_STEPS = 20, 5
 
 
 def adaptive():
-    """The disk on slab on estimator-adapted meshes (curved geometry, P2, theta = -1, from
-    NX = ADAPT_START_NX, ADAPT_STEPS adaptations), each step's L2/H1 errors per body
-    against the curved reference and its area error, beside the uniform curved ladder of
-    results/curved_convergence.csv (run again here): results/curved_adaptive.csv."""
+    """The disk on slab on estimator-adapted meshes (curved geometry, P2, theta = -1, the
+    scene's stabilization, from NX = ADAPT_START_NX, ADAPT_STEPS adaptations): each step's
+    estimators, L2/H1 errors per body against the curved reference and the relative error
+    of the disk's area: results/curved_adaptive.csv (the uniform ladder it is read beside
+    is results/curved_convergence.csv)."""
     ref = reference(REFERENCE_NX, "curved")
-    rows = []
-    for n, nx in enumerate(LADDER, start=1):
-        progress(n, len(LADDER) + 1, f"uniform P2 NX = {nx}, curved geometry")
-        row, results, folder = run_point(DISK, [f"mesh.nx={nx}", "output.save_solution=true", *QUIET])
-        if results is None:
-            raise DriverError(f"uniform run NX = {nx} failed: {row['message']}")
-        rows.append(adaptive_row(ref, folder, "uniform", nx, 0, results["dofs"], results["areas"]["body1"],
-                                 results["areas"]["body1_exact"]))
-    progress(len(LADDER) + 1, len(LADDER) + 1, f"adaptive P2 from NX = {ADAPT_START_NX}, {ADAPT_STEPS} steps")
-    row, results, folder = run_point(DISK, [f"mesh.nx={ADAPT_START_NX}", f"adapt.steps={ADAPT_STEPS}",
-                                            "output.save_solution=true", *QUIET])
-    if results is None:
-        raise DriverError(f"adaptive run failed: {row['message']}")
-    steps = results["steps"]
-    for step, dofs in enumerate(steps["dofs"]):
-        rows.append(adaptive_row(ref, folder / f"step_{step}", "adaptive", ADAPT_START_NX, step, dofs,
-                                 steps["area_body1"][step], results["areas"]["body1_exact"]))
+    progress(1, 1, f"adaptive P2 from NX = {ADAPT_START_NX}, {ADAPT_STEPS} steps")
+    rows, results = adaptive_rows(ref, ADAPT_START_NX, ADAPT_STEPS, [])
+    table = pd.DataFrame(rows)
+    exact = results["areas"]["body1_exact"]
+    table["area_rel_err"] = (table.area_body1 - exact) / exact
     out = RESULTS_DIR / "curved_adaptive.csv"
-    pd.DataFrame(rows).to_csv(out, index=False)
+    table.to_csv(out, index=False)
     print(f"wrote {out}")
-
-
-def adaptive_row(ref, folder, mode, nx, step, dofs, area, area_exact):
-    err = tool_errors("fd_error_2d.edp", ref, folder)
-    return {"mode": mode, "nx": nx, "step": step, "dofs": dofs,
-            "l2_body1": err["l2_body1"], "l2_body2": err["l2_body2"],
-            "h1_body1": err["h1_body1"], "h1_body2": err["h1_body2"],
-            "area_rel_err": (area - area_exact) / area_exact}
 
 
 def clamped_exact(scene_path):

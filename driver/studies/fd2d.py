@@ -150,7 +150,7 @@ def dense_ladder():
     reference's. The NX = 336 run is measured against the reference, and NX = 112 and
     160 against it: whether the reference favours the meshes that nest into it."""
     ref = reference()
-    grid = [([f"method.degree=2", f"method.theta={t}", f"mesh.nx={nx}", UNSTABILIZED],
+    grid = [(["method.degree=2", f"method.theta={t}", f"mesh.nx={nx}", UNSTABILIZED],
              dict(theta=t, nested=int(REFERENCE_NX % nx == 0)))
             for t in (1, 0, -1) for nx in DENSE_LADDER]
     ladder = pd.DataFrame(run_points(run_with_errors_points(ref, grid), "fd2d-dense-ladder"))
@@ -161,7 +161,7 @@ def dense_ladder():
     reference_uy = json.loads((Path(ref) / "results.json").read_text())["probes"]["centre"][1]
     table = pd.concat([ladder, pd.DataFrame([check_row])], ignore_index=True).assign(reference_nx=REFERENCE_NX)
     table["centre_rel_err"] = (table.centre_uy - reference_uy).abs() / abs(reference_uy)
-    grid = [([f"method.degree=2", "method.theta=-1", f"mesh.nx={nx}", UNSTABILIZED],
+    grid = [(["method.degree=2", "method.theta=-1", f"mesh.nx={nx}", UNSTABILIZED],
              dict(theta=-1, nested=int(REFERENCE_CHECK_NX % nx == 0))) for nx in (112, 160)]
     table = pd.concat([table, pd.DataFrame(run_points(run_with_errors_points(check, grid), "fd2d-dense-ladder-check"))
                        .assign(reference_nx=REFERENCE_CHECK_NX)], ignore_index=True)
@@ -458,6 +458,19 @@ def estimator_row(folder, results, err, labels, step=None):
                 l2_body2=err["l2_body2"], efficiency=est["eta"] / energy, area_body1=area1, area_body2=area2)
 
 
+def adaptive_rows(ref, start_nx, steps, settings):
+    """The disk on slab adapted `steps` times from NX = start_nx (settings: more
+    overrides), every step's estimators and errors against ref (estimator_row, mode
+    "adaptive"); also the run's results.json."""
+    row, results, folder = run_point(DISK, [f"mesh.nx={start_nx}", f"adapt.steps={steps}",
+                                            "output.save_solution=true", *QUIET, *settings])
+    if results is None:
+        raise DriverError(f"adaptive run failed: {row['message']}")
+    return [estimator_row(folder, results, errors_against(ref, folder / f"step_{step}"),
+                          dict(mode="adaptive", nx=start_nx), step=step)
+            for step in range(len(results["steps"]["dofs"]))], results
+
+
 # Adapted background meshes produce cut ratios down to 1e-7; without stabilization
 # the stresses of such slivers spoil eta_3 (measured: NX = 16, 3 steps, eta_3 0.004 ->
 # 0.062 at the last step). The ghost penalty keeps every step regular.
@@ -476,14 +489,7 @@ def aposteriori():
             raise DriverError(f"uniform run NX={nx} failed: {row['message']}")
         rows.append(estimator_row(folder, results, errors_against(ref, folder), dict(mode="uniform", nx=nx)))
     progress(5, 5, "adaptive P2 theta=-1 from NX=20, 6 steps")
-    row, results, folder = run_point(DISK, ["mesh.nx=20", "adapt.steps=6", "output.save_solution=true", *QUIET,
-                                            *APOSTERIORI_SETTINGS])
-    if results is None:
-        raise DriverError(f"adaptive run failed: {row['message']}")
-    for step in range(len(results["steps"]["dofs"])):
-        step_dir = folder / f"step_{step}"
-        rows.append(estimator_row(folder, results, errors_against(ref, step_dir),
-                                  dict(mode="adaptive", nx=20), step=step))
+    rows += adaptive_rows(ref, 20, 6, APOSTERIORI_SETTINGS)[0]
     table = pd.DataFrame(rows)
     table.to_csv(RESULTS_DIR / "fd_aposteriori.csv", index=False)
     for mode, group in table.groupby("mode"):
