@@ -18,9 +18,9 @@ from tests.conftest import REPO, run_freefem, saved_run, tool_errors
 CENTRE_UY_REF = -1.833891860157e-02
 
 
-def solve(tmp_path, nx, geometry="curved", *extra):
+def solve(tmp_path, nx, geometry="curved", *extra, estimators=0):
     out = tmp_path / f"{geometry}_{nx}"
-    proc = run_freefem("fd_contact_2d.edp", "-nx", nx, "-geometry", geometry, "-estimators", 0,
+    proc = run_freefem("fd_contact_2d.edp", "-nx", nx, "-geometry", geometry, "-estimators", estimators,
                        "-vtu", 0, "-csv", 0, "-outdir", out, *extra)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     return json.loads((out / "results.json").read_text())
@@ -59,7 +59,7 @@ def test_adapted_meshes_keep_the_curved_area(tmp_path):
     # 0.0024 for the P1 one, and the ruled map from that vertex covered 2.2e-6 of the
     # 1.27e-5 inside it: the disk lost 5.4e-5 of its area. Such cells are now split.
     # python3 -m driver run cases/disk_on_slab.toml --set mesh.nx=20 --set adapt.steps=4
-    r = solve(tmp_path, 20, "curved", "-adapt_steps", 4, "-estimators", 1)
+    r = solve(tmp_path, 20, "curved", "-adapt_steps", 4, estimators=1)
     exact = r["areas"]["body1_exact"]
     errors = [abs(a - exact) / exact for a in r["steps"]["area_body1"]]
     assert len(errors) == 5
