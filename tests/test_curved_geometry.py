@@ -189,33 +189,22 @@ CLAMPED_BALL = "cases/verification/clamped_ball.toml"
 RING_LADDER = (20, 40, 80)
 
 
-@pytest.mark.parametrize("geometry, low, high", [("curved", 0.0, 1e-6), ("p1", 1e-2, 3e-2)])
-def test_clamped_disk_holds_its_exact_quadratic(run_scene, geometry, low, high):
-    """The clamped disk's displacement f (R^2 - r^2)/(2 lambda + 6 mu) is quadratic, so P2
-    holds it exactly: on the curved geometry a run misses it only by the geometry's
-    quadrature error (measured 5.3e-7 of the centre's displacement at NX = 20, largest
-    over the three probes), on the polygon by O(h^2) (2.1e-2); results/curved_patch.csv,
-    python -m driver study curved-smooth."""
+@pytest.mark.parametrize("scene, nx, geometry, low, high", [
+    (CLAMPED_DISK, 20, "curved", 0.0, 1e-6), (CLAMPED_DISK, 20, "p1", 1e-2, 3e-2),
+    (CLAMPED_BALL, 8, "curved", 0.0, 2e-4), (CLAMPED_BALL, 8, "p1", 5e-2, 0.15)])
+def test_clamped_body_holds_its_exact_quadratic(run_scene, scene, nx, geometry, low, high):
+    """Patch tests: a disk (ball) held on its whole boundary under a constant body force
+    has the quadratic displacement f (R^2 - r^2)/(2 lambda + (2d + 2) mu), which P2 holds
+    exactly, so a run misses it only by the geometry's quadrature error (largest probe
+    error over the centre's displacement). Measured: disk at NX = 20 5.3e-7 on the curved
+    geometry, 2.1e-2 on the polygon (results/curved_patch.csv, python -m driver study
+    curved-smooth); ball at nx = 8 8.0e-5 on the curved cells (its volume 1.8e-4 off),
+    9.9e-2 on the P1 cut (volume -0.127) (results/curved_patch_3d.csv, python -m driver
+    study fd3d-curved-smooth)."""
     from driver.studies.curved import clamped_exact
 
-    exact = clamped_exact(REPO / CLAMPED_DISK)
-    r = run_scene(CLAMPED_DISK, f"method.geometry={geometry}", "mesh.nx=20").results
-    scale = max(np.linalg.norm(u) for u in exact.values())
-    error = max(np.linalg.norm(np.array(r["probes"][name]) - u) for name, u in exact.items()) / scale
-    assert low <= error < high, error
-
-
-@pytest.mark.parametrize("geometry, low, high", [("curved", 0.0, 2e-4), ("p1", 5e-2, 0.15)])
-def test_clamped_ball_holds_its_exact_quadratic(run_scene, geometry, low, high):
-    """The 3D patch test: f (R^2 - r^2)/(2 lambda + 8 mu) in a ball held on its whole
-    boundary, nx = 8: on the curved cells the run misses it by 8.0e-5 of the centre's
-    displacement (largest over the three probes; the ball's volume is 1.8e-4 off), on
-    the P1 cut by 9.9e-2 (volume -0.127); results/curved_patch_3d.csv, python -m driver
-    study fd3d-curved-smooth."""
-    from driver.studies.curved import clamped_exact
-
-    exact = clamped_exact(REPO / CLAMPED_BALL)
-    r = run_scene(CLAMPED_BALL, f"method.geometry={geometry}", "mesh.nx=8").results
+    exact = clamped_exact(REPO / scene)
+    r = run_scene(scene, f"method.geometry={geometry}", f"mesh.nx={nx}").results
     scale = max(np.linalg.norm(u) for u in exact.values())
     error = max(np.linalg.norm(np.array(r["probes"][name]) - u) for name, u in exact.items()) / scale
     assert low <= error < high, error
