@@ -33,12 +33,12 @@ def test_disk_area_perimeter_and_integral_at_nx20(tmp_path):
     assert proc.returncode == 0, proc.stdout + proc.stderr
     rows = pd.read_csv(csv).set_index(["disk", "geometry"])
     scene, offgrid = rows.loc[("scene_disk", "curved")], rows.loc[("offgrid_disk", "curved")]
-    assert abs(scene["area_rel_err"]) < 5e-7            # measured 2.2e-7 (12 vertices on the circle)
-    assert abs(offgrid["area_rel_err"]) < 5e-7          # 2.3e-7
+    assert abs(scene["area_rel_err"]) < 1e-11           # measured 3.8e-13 (12 vertices on the circle)
+    assert abs(offgrid["area_rel_err"]) < 1e-11         # -1.7e-12
     assert abs(scene["perimeter_rel_err"]) < 2e-8       # -4.9e-9
     assert abs(offgrid["perimeter_rel_err"]) < 2e-8     # -2.8e-9
-    assert abs(scene["poly_rel_err"]) < 1e-6            # 3.4e-7
-    assert abs(offgrid["poly_rel_err"]) < 5e-6          # 1.5e-6
+    assert abs(scene["poly_rel_err"]) < 1e-11           # 7.5e-13
+    assert abs(offgrid["poly_rel_err"]) < 1e-10         # -1.4e-11
     assert scene["fallback"] == 0 and offgrid["fallback"] == 0
     # the P1 polygon, for scale: -7.1e-3 and -5.8e-3
     assert abs(rows.loc[("scene_disk", "p1")]["area_rel_err"]) > 5e-3
@@ -47,24 +47,26 @@ def test_disk_area_perimeter_and_integral_at_nx20(tmp_path):
 def test_solver_reports_the_curved_areas(tmp_path):
     r = solve(tmp_path, 20)
     areas = r["areas"]
-    assert abs(areas["body1"] - areas["body1_exact"]) / areas["body1_exact"] < 5e-7   # measured 2.2e-7
+    assert abs(areas["body1"] - areas["body1_exact"]) / areas["body1_exact"] < 1e-11   # measured 3.8e-13
     assert areas["body2"] == pytest.approx(0.25, rel=1e-12)
     assert r["newton"]["residual"][-1] < 1e-8
 
 
 def test_adapted_meshes_keep_the_curved_area(tmp_path):
-    # Adapted meshes put vertices next to the circle on edges nearly tangent to it: at
-    # step 4 of this loop one element has a vertex 3.1e-6 inside (its edge to an outside
-    # vertex dips 5.7e-4 inside), the exact crossing lies at 0.71 of that edge against
-    # 0.0024 for the P1 one, and the ruled map from that vertex covered 2.2e-6 of the
-    # 1.27e-5 inside it: the disk lost 5.4e-5 of its area. Such cells are now split.
+    # Adapted meshes make cells that a fixed rule misreads. A vertex just inside the
+    # circle on an edge nearly tangent to it: the ruled map from that vertex missed
+    # 2.2e-6 of the 1.27e-5 inside its element, 5.4e-5 of the disk (such cells are
+    # split). An edge crossing the circle at a shallow angle: the lines of the map near
+    # it meet the circle nearly tangentially and the 4-line rule missed 1.4e-3 of the
+    # inside part, 1.1e-6 of the disk at step 3 (the rule in s is now refined where the
+    # area from the cell's boundary disagrees).
     # python3 -m driver run cases/disk_on_slab.toml --set mesh.nx=20 --set adapt.steps=4
     r = solve(tmp_path, 20, "curved", "-adapt_steps", 4, estimators=1)
     exact = r["areas"]["body1_exact"]
     errors = [abs(a - exact) / exact for a in r["steps"]["area_body1"]]
     assert len(errors) == 5
-    # measured 2.2e-7, 3.1e-7, 2.4e-7, 2.0e-7, 2.4e-8 (before the split: step 4 5.4e-5)
-    assert max(errors) < 1e-6, errors
+    # measured 3.8e-13, 5.2e-13, 7.6e-13, 3.2e-13, 3.0e-13
+    assert max(errors) < 1e-11, errors
 
 
 def test_p1_geometry_stays_available(tmp_path):
