@@ -75,7 +75,7 @@ const double kCrossingShiftMax = 0.25;   // of an edge: exact against P1 crossin
 // The volume rule's area against the boundary's, relative to the (sub)cell: beyond
 // it the s rule is applied on panels, halved until each agrees with its halves to
 // this share of the cell times its length, at most kPanelDepthMax times.
-const double kVolumeRuleTol = 1e-10;
+const double kVolumeRuleTol = 1e-7;
 const int kPanelDepthMax = 30;
 
 struct Points {
