@@ -89,10 +89,11 @@ def file_digest(path):
 
 @functools.lru_cache(maxsize=None)
 def code_digest(extra=()):
-    """Digest of the FreeFEM sources and the driver modules that shape a run (read once
-    per process: the code does not change while a sweep is being set up)."""
+    """Digest of the FreeFEM sources, the plugins' sources and the driver modules that
+    shape a run (read once per process: the code does not change while a sweep is
+    being set up)."""
     digest = hashlib.sha256()
-    files = sorted((REPO / "freefem").rglob("*.edp")) + sorted((REPO / "freefem").rglob("*.idp"))
+    files = [path for pattern in ("*.edp", "*.idp", "*.cpp", "*.hpp") for path in sorted((REPO / "freefem").rglob(pattern))]
     files += [REPO / name for name in (*CODE_FILES, *extra)]
     for path in files:
         if path.is_file():
