@@ -158,10 +158,11 @@ scenes-study: setup
 # (computed once into runs/reference/), cost of the NX = 80 run, and the smooth
 # problems of cases/verification/ (a patch test with an exact quadratic, the held
 # ring's ladder against its own NX = 320 references), and the disk on slab on
-# estimator-adapted meshes against the same reference (results/curved_adaptive.csv).
+# estimator-adapted meshes against the same reference (results/curved_adaptive.csv),
+# and the disk's approach on every NX = 48, 56, ..., 400 (results/curved_centre_scan*.csv).
 .PHONY: curved-study
 curved-study: setup
-	$(PYTHON) -m driver study curved-geometry curved-convergence curved-smooth curved-adaptive
+	$(PYTHON) -m driver study curved-geometry curved-convergence curved-smooth curved-adaptive curved-centre-scan
 	$(PYTHON) -m driver readme
 
 .PHONY: fd3d-study

@@ -426,6 +426,12 @@ def curved_adaptive():
     return markdown_table(pd.DataFrame(rows))
 
 
+def curved_centre_scan_windows():
+    t = pd.read_csv(RESULTS / "curved_centre_scan_windows.csv")
+    return markdown_table(t[["nx_from", "nx_to", "meshes", "half_range_rel", "max_abs_dev_rel", "slope",
+                             "max_abs_area_rel_err"]], digits=3)
+
+
 def curved_smooth(csv="curved_smooth.csv", extra=()):
     t = pd.read_csv(RESULTS / csv)
     t = t[t.theta == -1].sort_values(["geometry", "nx"])
@@ -478,6 +484,7 @@ TABLES = {
     "curved_smooth_rates": curved_smooth_rates,
     "curved_smooth": curved_smooth,
     "curved_adaptive": curved_adaptive,
+    "curved_centre_scan_windows": curved_centre_scan_windows,
     "curved_patch_3d": functools.partial(curved_patch, "curved_patch_3d.csv", "volume_rel_err"),
     "curved_smooth_3d_rates": functools.partial(curved_smooth_rates, "curved_smooth_3d_rates.csv"),
     "curved_smooth_3d": functools.partial(curved_smooth, "curved_smooth_3d.csv", ("peak_rss_mb",)),

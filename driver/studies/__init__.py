@@ -34,6 +34,7 @@ REGISTRY = {
     "curved-convergence": ("curved", "convergence"),
     "curved-smooth": ("curved", "smooth_problems"),
     "curved-adaptive": ("curved", "adaptive"),
+    "curved-centre-scan": ("curved", "centre_scan"),
     "fd3d-curved-smooth": ("curved", "smooth_problems_3d"),
     "bench": ("bench", "bench"),
     "bench-newton": ("bench", "newton_grid"),

@@ -16,6 +16,7 @@ from driver.runner import REPO, TOOLS_DIR, freefem_binary, parse_json_file, run_
 from driver.studies.common import RESULTS_DIR, loglog_slope, progress, run_point, save_figure, saved_reference, tool_errors
 from driver.studies.fd2d import DISK, QUIET, REFERENCE_NX, adaptive_rows, reference, run_with_errors
 from driver.studies.fd3d import QUIET as QUIET_3D
+from driver.sweep import run_points, scene_point
 
 GEOMETRIES = ("p1", "curved")
 LADDER = (40, 80, 160)
@@ -103,6 +104,76 @@ def adaptive():
     out = RESULTS_DIR / "curved_adaptive.csv"
     table.to_csv(out, index=False)
     print(f"wrote {out}")
+
+
+# Every NX = 8k from 48 to 400: where the contact zone's ends fall in their elements
+# moves from mesh to mesh, and with it the disk's approach (docs/curved-geometry.md).
+SCAN_NX = tuple(range(48, 401, 8))
+SCAN_WINDOWS = ((48, 96), (104, 160), (168, 256), (264, 400))
+SCAN_RUNS = REPO / "runs" / "curved-centre-scan"
+
+
+def centre_scan():
+    """The disk-centre u_y of the disk on slab (P2, theta = -1, curved geometry, the
+    scene's stabilization) on every mesh of SCAN_NX, and its deviation from the curved
+    NX = 320 reference's: results/curved_centre_scan.csv (with the active zone's ends
+    and the disk's area error).
+    Per window of NX (SCAN_WINDOWS), the half range of u_y relative to the reference's
+    u_y (how far the approach swings between neighbouring meshes) and the least-squares
+    slope of the half ranges against h: results/curved_centre_scan_windows.csv;
+    plots/curved_centre_scan.png."""
+    ref = reference(REFERENCE_NX, "curved")
+    centre_ref = parse_json_file(ref / "results.json")["probes"]["centre"][1]
+    points = [scene_point(DISK, [f"mesh.nx={nx}", "output.estimators=false", *QUIET], SCAN_RUNS, {"nx": nx}, index=i)
+              for i, nx in enumerate(SCAN_NX)]
+    rows = pd.DataFrame(run_points(points, "curved-centre-scan"))
+    failed = rows[rows.status != "converged"]
+    if len(failed):
+        raise RuntimeError(f"curved-centre-scan: NX = {', '.join(map(str, failed.nx))} did not converge")
+    table = pd.DataFrame({"nx": rows.nx, "dofs": rows.dofs, "centre_uy": rows["probes.centre.1"],
+                          "active_xmin": rows["contact.active_extent.x.0"],
+                          "active_xmax": rows["contact.active_extent.x.1"],
+                          "newton_iterations": rows.newton_iterations, "wall_s": rows.wall_s,
+                          "area_rel_err": (rows["areas.body1"] - rows["areas.body1_exact"]) / rows["areas.body1_exact"]})
+    table["reference_uy"] = centre_ref
+    table["rel_dev"] = (table.centre_uy - centre_ref) / abs(centre_ref)
+    table.to_csv(RESULTS_DIR / "curved_centre_scan.csv", index=False)
+    windows = []
+    for lo, hi in SCAN_WINDOWS:
+        part = table[(table.nx >= lo) & (table.nx <= hi)]
+        windows.append({"nx_from": lo, "nx_to": hi, "meshes": len(part),
+                        "h_mean": float(np.exp(np.mean(np.log(1.0 / part.nx)))),
+                        "half_range_rel": (part.centre_uy.max() - part.centre_uy.min()) / 2 / abs(centre_ref),
+                        "max_abs_dev_rel": part.rel_dev.abs().max(),
+                        "max_abs_area_rel_err": part.area_rel_err.abs().max()})
+    windows = pd.DataFrame(windows)
+    windows["slope"] = loglog_slope(windows.h_mean, windows.half_range_rel)
+    windows.to_csv(RESULTS_DIR / "curved_centre_scan_windows.csv", index=False)
+    plot_centre_scan(table, windows)
+    print(f"wrote {RESULTS_DIR / 'curved_centre_scan.csv'}, {RESULTS_DIR / 'curved_centre_scan_windows.csv'}")
+
+
+def plot_centre_scan(table, windows):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
+    axes[0].plot(table.nx, table.centre_uy, "o-", ms=3, lw=0.8, label="P2, curved geometry")
+    axes[0].axhline(table.reference_uy.iloc[0], color="k", ls=":", label=f"NX = {REFERENCE_NX} reference")
+    axes[0].set_xlabel("NX")
+    axes[0].set_ylabel("disk-centre u_y")
+    axes[0].legend(fontsize=8)
+    axes[0].grid(True, alpha=0.3)
+    axes[1].loglog(1.0 / table.nx, table.rel_dev.abs(), "o", ms=3, label="|u_y - reference| / |reference|")
+    axes[1].loglog(windows.h_mean, windows.half_range_rel, "s-",
+                   label=f"half range per window of NX (slope {windows.slope.iloc[0]:.2f})")
+    axes[1].set_xlabel("h = 1/NX")
+    axes[1].legend(fontsize=8)
+    axes[1].grid(True, which="both", alpha=0.3)
+    fig.suptitle("disk on slab, P2, theta = -1: the disk's approach from mesh to mesh "
+                 "(python -m driver study curved-centre-scan)", fontsize=9)
+    save_figure(fig, "curved_centre_scan.png")
 
 
 def clamped_exact(scene_path):
