@@ -57,9 +57,9 @@ def test_adapted_meshes_keep_the_curved_area(tmp_path):
     # circle on an edge nearly tangent to it: the ruled map from that vertex missed
     # 2.2e-6 of the 1.27e-5 inside its element, 5.4e-5 of the disk (such cells are
     # split). An edge crossing the circle at a shallow angle: the lines of the map near
-    # it meet the circle nearly tangentially and the 4-line rule missed 1.4e-3 of the
-    # inside part, 1.1e-6 of the disk at step 3 (the rule in s is now refined where the
-    # area from the cell's boundary disagrees).
+    # it meet the circle nearly tangentially and the 4-line rule made the inside part
+    # 1.4e-3 too large, the disk 1.1e-6 at step 3 (the rule in s is now refined where
+    # the area from the cell's boundary disagrees).
     # python3 -m driver run cases/disk_on_slab.toml --set mesh.nx=20 --set adapt.steps=4
     r = solve(tmp_path, 20, "curved", "-adapt_steps", 4, estimators=1)
     exact = r["areas"]["body1_exact"]

@@ -339,8 +339,8 @@ bool ruledMap(const LevelSet &phi, const Rules &q, const double *X, const double
     }
     // The s rule's check. Lines that meet the interface at a shallow angle (an edge
     // crossing it nearly tangentially) make rho vary fast near one end of the chord,
-    // and a fixed rule in s misses part of the cell: on an adapted mesh of the disk on
-    // slab 1.4e-3 of one element's inside part, 1.1e-6 of the disk. The boundary
+    // and a fixed rule in s misjudges the cell: on an adapted mesh of the disk on slab
+    // one element's inside part came out 1.4e-3 too large, the disk 1.1e-6. The boundary
     // gives the area independently, from the interface as a graph over the chord,
     // which stays smooth there: the polygon base-chord plus len times the integral of
     // sigma. Where the two disagree, the s rule is refined adaptively.
