@@ -370,16 +370,18 @@ def curved_geometry_table(name, shape, counts):
     for value in measures:
         for geometry in ("p1", "curved"):
             out[f"{labels[value]} {geometry}"] = wide[(value, geometry)].map(lambda v: f"{v:.2g}")
-    if counts:   # the curved cells: how many, and how many fell back to the P1 cut
+    if counts:   # the curved cells: how many, how many fell back to the P1 cut, their volume points
         curved = t[t["geometry"] == "curved"].set_index([shape, "nx"])
         out["curved cut cells"] = [
             f"{int(curved.loc[(b, n), 'cut_elements'])}" for b, n in zip(out[shape], out["NX"])]
         out["fallbacks"] = [int(curved.loc[(b, n), "fallback"]) for b, n in zip(out[shape], out["NX"])]
+        if "volume_points" in curved:
+            out["volume points"] = [int(curved.loc[(b, n), "volume_points"]) for b, n in zip(out[shape], out["NX"])]
     return markdown_table(out)
 
 
 def curved_geometry():
-    return curved_geometry_table("curved_geometry.csv", "disk", counts=False)
+    return curved_geometry_table("curved_geometry.csv", "disk", counts=True)
 
 
 def curved_geometry_3d():
