@@ -12,6 +12,7 @@ not zero; boundary labels exist on the mesh.
 
 from pathlib import Path
 
+from driver import gmsh_input
 from driver.errors import SceneError
 from driver.materials import young_from_lame
 from driver.scene import SCENE_HEADER
@@ -129,9 +130,9 @@ def check(scene, source):
     elif not geo["geo"]:
         raise SceneError(f"{source}: key 'geometry.geo': required when geometry.kind = 'gmsh'")
     else:
-        geo_path = (Path(source).parent / geo["geo"]).resolve()
-        if not geo_path.is_file():
-            raise SceneError(f"{source}: key 'geometry.geo': file not found: {geo_path}")
+        where = f"{source}: key 'geometry.geo'"
+        geo_path = gmsh_input.file_inside(Path(source).parent, geo["geo"], where, (".geo",))
+        gmsh_input.check_mesh_sizes(gmsh_input.read_geo(geo_path, where), where)
         geo["geo_path"] = str(geo_path)
     folder = scene["reference"]["folder"]
     if folder:
@@ -199,9 +200,10 @@ def prepare_mesh(scene, workdir, run_command):
     geo = scene["geometry"]
     if geo["kind"] != "gmsh":
         return ""
-    msh = Path(workdir) / "mesh.msh"
-    run_command(["gmsh", "-2", "-format", "msh22", "-clmax", repr(1.0 / scene["mesh"]["nx"]),
-                 "-v", "2", geo["geo_path"], "-o", str(msh)], "gmsh")
+    where = f"{scene['_source']}: key 'geometry.geo'"
+    records = gmsh_input.read_geo(Path(geo["geo_path"]), where)
+    msh = gmsh_input.mesh_geo(records, 2, 1.0 / scene["mesh"]["nx"], where, Path(workdir) / "mesh.msh",
+                              scene["limits"]["gmsh_s"])
     return str(msh)
 
 

@@ -7,23 +7,24 @@ them against the box (a body outside the box, bodies that overlap at the start, 
 probe outside its body: one SceneError each) and writes the module text.
 """
 
+import functools
 import math
-import shutil
-import subprocess
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from driver import gmsh_input
 from driver.errors import SceneError
 from driver.materials import body_lame
-from driver.geometry import Boolean, Disk, HalfSpace, fmt, placed_measure, read_shape, sample_grid
+from driver.schema import finite_floats
+from driver.geometry import (MAX_POLYGON_EDGES, Boolean, Disk, HalfSpace, fmt, placed_measure, read_shape,
+                             sample_grid)
 
 FACES = {"ymin": 1, "xmax": 2, "ymax": 3, "xmin": 4, "zmin": 5, "zmax": 6}
 COMPONENTS = ("x", "y", "z")
-# gmsh's .geo language can run programs and write files: such commands are refused.
-GEO_REFUSED = ("system", "systemcall", "nonblockingsystemcall", "onelabrun", "include", "merge", "save",
-               "print", "printf", "plugin", "createdir", "sleep", "exit", "abort", "setname")
+DEFAULT_GMSH_S = 60.0    # limits.gmsh_s: wall-time limit of one gmsh run
+MAX_MODULE_CHARS = 400_000   # the shipped scenes' modules: 2.6 kB, the cam's 17 kB
 
 
 def box_of(scene, dim):
@@ -47,53 +48,40 @@ def legacy_shape(body, dim, key):
     return Boolean(dim, None, None, "intersection", [slab, HalfSpace(dim, None, None, [0.0, a], [b, -1.0])])
 
 
-def gmsh_outline(data, base_dir, where):
+def gmsh_outline(data, base_dir, where, limits=None):
     """Closed loops of a gmsh geometry (.geo, meshed in 1D by gmsh) or of a mesh's boundary
-    lines (.msh), in the plane z = 0; `size` is the mesh size given to gmsh."""
-    import meshio
-
-    name = data.get("file")
-    if not isinstance(name, str) or not name:
-        raise SceneError(f"{where}.file: required (a .geo or .msh file, relative to the scene file)")
-    path = (Path(base_dir) / name).resolve()
-    if path.suffix not in (".geo", ".msh") or not path.is_file():
-        raise SceneError(f"{where}.file: {name!r} is not a .geo or .msh file next to the scene")
+    lines (.msh), in the plane z = 0; `size` is the mesh size given to gmsh. The file is read
+    as data (driver/gmsh_input.py): it must lie in the scene's folder, and a .geo may hold
+    geometry statements only."""
+    path = gmsh_input.file_inside(base_dir, data.get("file"), f"{where}.file", (".geo", ".msh"))
     size = data.get("size", 0.02)
     if isinstance(size, bool) or not isinstance(size, (int, float)) or not 0 < size < 1e6:
         raise SceneError(f"{where}.size: must be a number > 0, got {size!r}")
-    with tempfile.TemporaryDirectory(prefix="fdcontact-gmsh-") as tmp:
-        if path.suffix == ".geo":
-            try:
-                text = path.read_text(encoding="utf-8")
-            except (UnicodeDecodeError, OSError) as exc:
-                raise SceneError(f"{where}.file: cannot read {name!r} as text ({exc})") from None
-            words = {w.lower() for w in "".join(c if c.isalnum() else " " for c in text).split()}
-            refused = sorted(words & set(GEO_REFUSED))
-            if refused:
-                raise SceneError(f"{where}.file: {name!r} uses {', '.join(refused)}: commands that run programs "
-                                 f"or touch files are refused in scene geometry")
-            gmsh = shutil.which("gmsh")
-            if gmsh is None:
-                raise SceneError(f"{where}: gmsh not found (run 'make setup')")
-            out = Path(tmp) / "outline.msh"
-            proc = subprocess.run([gmsh, str(path), "-1", "-clmax", repr(float(size)), "-format", "msh2",
-                                   "-o", str(out)], cwd=tmp, capture_output=True, text=True)
-            if proc.returncode != 0 or not out.is_file():
-                tail = (proc.stdout + proc.stderr).strip().splitlines()[-3:]
-                raise SceneError(f"{where}.file: gmsh could not mesh {name!r}: {' '.join(tail)}")
-            mesh_path = out
-        else:
-            mesh_path = path
-        try:
-            mesh = meshio.read(mesh_path)
-        except Exception as exc:   # meshio raises many types on a malformed file
-            raise SceneError(f"{where}.file: cannot read the mesh {name!r} ({type(exc).__name__})") from None
+    if path.suffix == ".geo":
+        records = gmsh_input.read_geo(path, f"{where}.file")
+        gmsh_input.check_mesh_sizes(records, f"{where}.file")
+        segments = 2 * gmsh_input.geo_extent(records) / size
+        if segments > MAX_POLYGON_EDGES:
+            raise SceneError(f"{where}.size: {size:g} gives at least {segments:.0f} edges on the outline; "
+                             f"at most {MAX_POLYGON_EDGES} (a larger size)")
+        seconds = (limits or {}).get("gmsh_s", DEFAULT_GMSH_S)
+        with tempfile.TemporaryDirectory(prefix="fdcontact-outline-") as tmp:
+            out = gmsh_input.mesh_geo(records, 1, size, f"{where}.file", Path(tmp) / "outline.msh", seconds)
+            mesh = gmsh_input.read_msh(out, f"{where}.file")
+    else:
+        mesh = gmsh_input.read_msh(path, f"{where}.file")
     lines = [c.data for c in mesh.cells if c.type == "line"]
+    name = path.name
     if not lines:
         raise SceneError(f"{where}.file: {name!r} has no boundary lines")
+    if not np.all(np.isfinite(mesh.points)):
+        raise SceneError(f"{where}.file: {name!r} has coordinates that are not finite")
     if np.abs(mesh.points[:, 2:]).max(initial=0.0) > 1e-12:
         raise SceneError(f"{where}.file: the outline must lie in the plane z = 0")
-    return chain_loops(np.vstack(lines), mesh.points[:, :2], f"{where}.file")
+    edges = np.vstack(lines)
+    if edges.size and (edges.min() < 0 or edges.max() >= len(mesh.points)):
+        raise SceneError(f"{where}.file: {name!r} has lines through points it does not define")
+    return chain_loops(edges, mesh.points[:, :2], f"{where}.file")
 
 
 def chain_loops(edges, points, where):
@@ -130,12 +118,13 @@ class Bodies:
     def __init__(self, scene, dim, source, base_dir):
         self.dim = dim
         self.box = box_of(scene, dim)
+        self.mesher = functools.partial(gmsh_outline, limits=scene.get("limits"))
         self.shapes, self.holds, self.loads = [], [], []
         for i in (1, 2):
             body = scene[f"body{i}"]
             where = f"{source}: key body{i}.shape"
             shape = (legacy_shape(body, dim, f"body{i}") if isinstance(body["shape"], str)
-                     else read_shape(body["shape"], dim, where, base_dir, gmsh_outline))
+                     else read_shape(body["shape"], dim, where, base_dir, self.mesher))
             self.shapes.append(shape)
             for kind in ("hold", "load"):
                 if not isinstance(body.get(kind, []), list):
@@ -166,11 +155,9 @@ class Bodies:
         if ("face" in part) == ("region" in part):
             raise SceneError(f"{where}: give either face = \"xmin\" | \"xmax\" | ... or region = {{ shape }}")
         value = part.get(value_key, [0.0] * self.dim if value_key == "displacement" else None)
-        if (not isinstance(value, list) or len(value) != self.dim
-                or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
-                       for v in value)):
-            raise SceneError(f"{where}.{value_key}: expected {self.dim} finite numbers, got {value!r}")
-        out = {value_key: [float(v) for v in value]}
+        if finite_floats(value, self.dim) is None:
+            raise SceneError(f"{where}.{value_key}: expected {self.dim} finite numbers, got {str(value)[:80]}")
+        out = {value_key: finite_floats(value, self.dim)}
         comps = part.get("components", "".join(COMPONENTS[:self.dim]))
         if (not isinstance(comps, str) or not comps or any(c not in COMPONENTS[:self.dim] for c in comps)
                 or len(set(comps)) != len(comps)):
@@ -184,7 +171,7 @@ class Bodies:
         else:
             if comps != "".join(COMPONENTS[:self.dim]):
                 raise SceneError(f"{where}.components: a cut-boundary hold holds every component")
-            out["region"] = read_shape(part["region"], self.dim, f"{where}.region", base_dir, gmsh_outline)
+            out["region"] = read_shape(part["region"], self.dim, f"{where}.region", base_dir, self.mesher)
         extra = set(part) - {"face", "region", value_key, "components"}
         if extra:
             raise SceneError(f"{where}: unknown key(s) {', '.join(sorted(extra))}")
@@ -196,10 +183,10 @@ class Bodies:
         name, point, body = probe.get("name"), probe.get("point"), probe.get("body", 1)
         if not isinstance(name, str) or not name or not all(c.isalnum() or c in "_-" for c in name) or len(name) > 40:
             raise SceneError(f"{where}.name: 1-40 letters, digits, '_' or '-', got {name!r}")
-        if (not isinstance(point, list) or len(point) != self.dim
-                or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in point)):
-            raise SceneError(f"{where}.point: expected {self.dim} numbers, got {point!r}")
-        if body not in (1, 2):
+        if finite_floats(point, self.dim) is None:
+            raise SceneError(f"{where}.point: expected {self.dim} finite numbers, got {str(point)[:80]}")
+        point = finite_floats(point, self.dim)
+        if isinstance(body, bool) or not isinstance(body, int) or body not in (1, 2):
             raise SceneError(f"{where}.body: must be 1 or 2, got {body!r}")
         if set(probe) - {"name", "point", "body"}:
             raise SceneError(f"{where}: unknown key(s) {', '.join(sorted(set(probe) - {'name', 'point', 'body'}))}")
@@ -355,6 +342,13 @@ def check_two_bodies(scene, source, dim, legacy_shapes, legacy_keys):
     legacy_supports(scene, dim)
     legacy_probe(scene)
     bodies = Bodies(scene, dim, source, Path(source).parent)
+    try:
+        text = bodies.module_text(scene["scene"]["name"])
+    except SceneError as exc:
+        raise SceneError(f"{source}: key body1/body2: {exc}") from None
+    if len(text) > MAX_MODULE_CHARS:
+        raise SceneError(f"{source}: the scene module would be {len(text):,} characters; at most "
+                         f"{MAX_MODULE_CHARS:,} (use fewer or simpler shapes, regions and polygons)")
     scene["_bodies"] = bodies
     if scene["adapt"]["steps"] > 0 and not scene["output"]["estimators"]:
         raise SceneError(f"{source}: key 'adapt.steps': adaptation (adapt.steps > 0) needs output.estimators = true")
