@@ -31,7 +31,8 @@ def estimated_dofs(scene):
     adapt = scene.get("adapt", {})
     steps = adapt.get("steps", 0)
     if steps > 0:   # each step aims at growth x the DOFs, and stops before max_dofs
-        grown = dofs * 1.5 * adapt.get("growth", 2.0) ** steps
+        growth = max(adapt.get("growth", 2.0), 1.0)
+        grown = dofs * 1.5 * growth ** min(steps, 200)
         dofs = max(dofs, min(grown, adapt.get("max_dofs", grown)))
     return dofs
 
@@ -55,8 +56,11 @@ def available_memory_mb():
 
 def check_fits(scene, source):
     """Refuse (exit 2) a run whose estimated memory exceeds what the machine has available."""
-    dofs = estimated_dofs(scene)
-    need = estimated_memory_mb(scene, dofs)
+    try:
+        dofs = float(estimated_dofs(scene))
+        need = float(estimated_memory_mb(scene, dofs))
+    except OverflowError:
+        dofs = need = math.inf
     have = available_memory_mb()
     if need > 0.9 * have:
         raise SceneError(f"{source}: the run is too large for this machine: about {dofs:.3g} DOFs and "

@@ -7,20 +7,24 @@ failure.json and the log, never results.json). See check_output_folder for what
 an --out may be.
 """
 
+import ctypes
 import datetime
+import fcntl
 import hashlib
 import json
 import os
 import re
+import resource
 import shutil
 import signal
+import secrets
 import subprocess
 import threading
 import time
 from pathlib import Path
 
 from driver.errors import DriverError, FreeFemError, NewtonError, SceneError
-from driver.resources import check_fits
+from driver.resources import available_memory_mb, check_fits
 
 REPO = Path(__file__).resolve().parent.parent
 FREEFEM_DIR = REPO / "freefem"
@@ -69,19 +73,6 @@ def freefem_message(log_text):
     return "\n  ".join(keep[-8:]) if keep else "\n  ".join(log_text.strip().splitlines()[-8:])
 
 
-def watch_peak_memory(pid, result):
-    """Poll the kernel's high-water mark of a process (VmHWM, kB) until it exits."""
-    path = Path(f"/proc/{pid}/status")
-    while True:
-        try:
-            for line in path.read_text().splitlines():
-                if line.startswith("VmHWM:"):
-                    result[0] = max(result[0], int(line.split()[1]))
-        except (OSError, ValueError):
-            return
-        time.sleep(0.05)
-
-
 def run_id(scene, args):
     digest = hashlib.sha1(" ".join(args).encode()).hexdigest()[:8]
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
@@ -89,33 +80,69 @@ def run_id(scene, args):
 
 
 # Every folder the driver creates holds this file: the driver only ever replaces or
-# removes folders that carry it.
+# removes folders that carry it. A failed run's marker says so: failures are never
+# replaced or removed.
 MARKER = ".fdcontact-run"
+MARKER_RUN = "fdcontact run folder\n"
+MARKER_FAILED = "fdcontact failed run\n"
+LOCK = ".fdcontact-lock"      # held (flock) by the driver and FreeFEM while a run writes its folder
+NAME_MAX = 200                # a run folder's name, leaving room for .NAME.staging and NAME.failed-999
+
+
+def marker_text(folder):
+    try:
+        return (folder / MARKER).read_text()
+    except (OSError, UnicodeDecodeError):
+        return None
 
 
 def is_package_run(folder):
-    """A folder this package wrote (runs made before the marker existed: their three inputs)."""
-    return (folder / MARKER).is_file() or all(
-        (folder / name).is_file() for name in ("scene.json", "command.txt", "freefem.log"))
+    """A folder this package wrote (it carries the marker file)."""
+    return marker_text(folder) is not None
+
+
+def is_kept_failure(folder):
+    return marker_text(folder) == MARKER_FAILED or (folder / "failure.json").exists()
+
+
+def resolve_out(out_dir):
+    """The absolute run folder an --out names. Refused (exit 2): a symbolic link anywhere on the
+    path (a run is never published into a link's target), a name too long for its staging and
+    failure folders."""
+    given = Path(out_dir).expanduser()
+    path = given if given.is_absolute() else Path.cwd() / given
+    longest = max((len(os.fsencode(part)) for part in path.parts), default=0)
+    if longest > NAME_MAX or len(os.fsencode(path)) > 3000:
+        raise SceneError(f"--out {str(out_dir)[:60]}...: a folder name has {longest} bytes; at most {NAME_MAX}")
+    prefix = Path(path.anchor)
+    for part in path.parts[1:]:
+        prefix = prefix / part
+        if part not in (".", "..") and prefix.is_symlink():
+            raise SceneError(f"--out {out_dir}: {prefix} is a symbolic link; name a path without links")
+    return Path(os.path.normpath(path))
 
 
 def check_output_folder(final, replace):
-    """Refuse an --out that would lose data: a place that is not a run of this package,
-    a previous run without replace=True, the checkout, its parents, the home folder."""
+    """Refuse an --out that would lose data: a place that is not a run of this package, a kept
+    failure, a previous run without replace=True, the checkout, its parents, the home folder."""
     protected = {Path("/"), Path.home().resolve(), REPO}
     if final in protected or final in REPO.parents or final in Path.home().resolve().parents:
         raise SceneError(f"--out {final}: refusing to write a run into the checkout, its parent folders "
                          f"or the home folder; name a new folder")
     if final.is_symlink() or (final.exists() and not final.is_dir()):
         raise SceneError(f"--out {final}: exists and is not a folder")
-    if final.is_dir():
-        if is_package_run(final):
-            if (final / "results.json").is_file() and not replace:
-                raise SceneError(f"--out {final}: holds a previous run; pass --replace to replace it "
-                                 f"(the old run stays until the new one has converged)")
-        elif any(final.iterdir()):
-            raise SceneError(f"--out {final}: exists and is not a run of this package; "
-                             f"name a new or empty folder (nothing in it was touched)")
+    if not final.is_dir():
+        return
+    if is_package_run(final):
+        if is_kept_failure(final):
+            raise SceneError(f"--out {final}: holds a failed run, kept for inspection and never replaced; "
+                             f"name another folder")
+        if not replace:
+            raise SceneError(f"--out {final}: holds a previous run; pass --replace to replace it "
+                             f"(the old run stays until the new one has converged)")
+    elif any(final.iterdir()):
+        raise SceneError(f"--out {final}: exists and is not a run of this package; "
+                         f"name a new or empty folder (nothing in it was touched)")
 
 
 def pid_alive(pid):
@@ -128,25 +155,88 @@ def pid_alive(pid):
     return True
 
 
+def try_lock(folder):
+    """An exclusive lock on folder's lock file (a descriptor), or None while another process
+    holds it. The lock dies with the last process holding it: the driver and FreeFEM."""
+    try:
+        fd = os.open(folder / LOCK, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
+    except OSError:
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        return None
+    return fd
+
+
+def retire_stale(staging, final):
+    """A staging folder whose writers are all dead becomes FINAL.failed (never removed).
+    Returns False when a live process still holds it, or it is not the package's."""
+    if not is_package_run(staging):
+        return False
+    had_lock = (staging / LOCK).exists()
+    fd = try_lock(staging)
+    if fd is None:
+        return False
+    try:
+        try:
+            owner = int((staging / "driver.pid").read_text())
+        except (OSError, ValueError):
+            owner = None
+        if not had_lock and owner is not None and pid_alive(owner):
+            return False     # written by a driver without the lock file, still running
+        remove_outputs(staging)
+        (staging / MARKER).write_text(MARKER_FAILED)
+        if not (staging / "failure.json").exists():
+            (staging / "failure.json").write_text(json.dumps(
+                {"status": "abandoned", "message": "the driver writing this run stopped before it ended"}) + "\n")
+        staging.rename(failed_folder(final))
+        return True
+    finally:
+        os.close(fd)
+
+
+def retire_stale_siblings(parent):
+    """Staging folders left in parent by runs whose processes all died (a killed driver, a
+    killed Dask worker) become NAME.failed."""
+    try:
+        names = [entry.name for entry in os.scandir(parent)
+                 if entry.name.startswith(".") and entry.name.endswith(".staging") and entry.is_dir()]
+    except OSError:
+        return
+    for name in names:
+        staging = Path(parent) / name
+        try:
+            retire_stale(staging, staging.with_name(name[1:-len(".staging")]))
+        except (OSError, SceneError):
+            pass     # another run retired it first, or it is not ours: leave it
+
+
 def claim_staging(staging, final):
-    """Create the staging folder exclusively: one writer per output folder."""
+    """Create the staging folder, locked, atomically: one writer per output folder. Returns the
+    lock's descriptor (FreeFEM inherits it, so the lock lives as long as either process)."""
     staging.parent.mkdir(parents=True, exist_ok=True)
     for _ in range(2):
+        claim = staging.parent / f".{final.name[:40]}.claim-{os.getpid()}-{secrets.token_hex(4)}"
+        claim.mkdir()
+        fd = try_lock(claim)
+        (claim / MARKER).write_text(MARKER_RUN)
+        (claim / "driver.pid").write_text(f"{os.getpid()}\n")
+        os.write(fd, f"{os.getpid()}\n".encode())
         try:
-            staging.mkdir()
-        except FileExistsError:
+            os.rename(claim, staging)       # fails when staging exists and holds anything
+            return fd
+        except OSError:
+            os.close(fd)
+            shutil.rmtree(claim, ignore_errors=True)
+        if not retire_stale(staging, final):
             try:
                 owner = int((staging / "driver.pid").read_text())
             except (OSError, ValueError):
                 owner = None
-            if owner is not None and pid_alive(owner) or not is_package_run(staging):
-                raise SceneError(f"--out {final}: another run is writing to it"
-                       + (f" (driver pid {owner})" if owner else f" ({staging} exists)"))
-            shutil.rmtree(staging)   # left by a driver that was killed
-            continue
-        (staging / MARKER).write_text("fdcontact run folder\n")
-        (staging / "driver.pid").write_text(f"{os.getpid()}\n")
-        return
+            raise SceneError(f"--out {final}: another run is writing to it"
+                             + (f" (driver pid {owner})" if owner else f" ({staging} exists)"))
     raise SceneError(f"--out {final}: could not claim {staging}")
 
 
@@ -155,7 +245,7 @@ def failed_folder(final):
     earlier failures (a run deletes nothing it did not create)."""
     for k in range(1, 1000):
         failed = final.with_name(final.name + (".failed" if k == 1 else f".failed-{k}"))
-        if not failed.exists():
+        if not failed.exists() and not failed.is_symlink():
             return failed
     raise SceneError(f"{final}: 999 failed runs beside it; remove some")
 
@@ -168,7 +258,7 @@ def publish(staging, final):
         final.rename(old)
     staging.rename(final)
     if old is not None:
-        if is_package_run(old):
+        if is_package_run(old) and not is_kept_failure(old):
             shutil.rmtree(old)
         else:
             old.rmdir()   # the empty folder the user named
@@ -197,9 +287,11 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
     """Run FreeFEM for a validated scene. Returns (results dict, run folder, wall seconds).
 
     FreeFEM writes into a hidden staging folder beside the run folder, claimed
-    exclusively; the staging folder becomes the run folder only when the run
-    converged and its results.json parses, otherwise FINAL.failed (its log,
-    failure.json, never results.json). The run folder itself is left as it was.
+    exclusively and locked while the driver or FreeFEM lives; the staging folder becomes
+    the run folder only when the run converged and its results.json parses, otherwise
+    FINAL.failed (its inputs, log and failure.json, no result file). The run folder itself
+    is left as it was. FreeFEM runs within the scene's limits (time, memory) and dies
+    with the driver.
     """
     runs_dir = Path(runs_dir or REPO / "runs").resolve()
     script = Path(script) if script else FREEFEM_DIR / f"{scene['scene']['script']}.edp"
@@ -208,7 +300,7 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
     binary = freefem_binary()
     probe_args = module.freefem_args(scene)
     if out_dir:
-        final = Path(out_dir).expanduser().resolve()
+        final = resolve_out(out_dir)
     else:
         base = runs_dir / run_id(scene, probe_args)
         final, k = base, 1
@@ -217,8 +309,10 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
             final = base.with_name(f"{base.name}-{k}")
     check_output_folder(final, replace)
     check_fits(scene, scene["_source"])
+    limits = run_limits(scene)
+    retire_stale_siblings(final.parent)
     staging = final.with_name(f".{final.name}.staging")   # same filesystem: rename is atomic
-    claim_staging(staging, final)
+    lock = claim_staging(staging, final)
     proc = None
     try:
         (staging / "scene.json").write_text(json.dumps(
@@ -235,23 +329,25 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
         start = time.perf_counter()
         with open(staging / "freefem.log", "w") as log:
             proc = subprocess.Popen(launch, cwd=REPO, env=freefem_env(), stdout=subprocess.PIPE,
-                                    stderr=subprocess.STDOUT, text=True, errors="replace")
-            peak_kb = [0]
-            watcher = threading.Thread(target=watch_peak_memory, args=(proc.pid, peak_kb), daemon=True)
-            watcher.start()
+                                    stderr=subprocess.STDOUT, text=True, errors="replace",
+                                    pass_fds=(lock,), preexec_fn=die_with_parent)
+            guard = Guard(proc, limits)
             for line in proc.stdout:
                 log.write(line)
                 log.flush()   # the log of a running job can be followed (tail -f)
                 if echo is not None:
                     echo(line.rstrip("\n"))
             proc.wait()
+            guard.stop()
         wall = time.perf_counter() - start
+        guard.check(scene["scene"]["name"], proc.returncode)
         results = check_outcome(proc.returncode, staging, scene["scene"]["name"])
         results["wall_s"] = wall
-        results["peak_rss_mb"] = peak_kb[0] / 1024.0
+        results["peak_rss_mb"] = guard.peak_mb
         (staging / "results.json").write_text(json.dumps(results, indent=1))
         (staging / "driver.pid").unlink()
         publish(staging, final)
+        (final / LOCK).unlink()
         return results, final, wall
     except BaseException as error:
         if proc is not None:
@@ -267,6 +363,97 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
             reason = str(error.args[0]) if error.args else type(error).__name__
         keep_failure(staging, final, error, reason)
         raise error from None
+    finally:
+        os.close(lock)
+
+
+def die_with_parent():
+    """In the child before exec: the kernel kills FreeFEM when the driver dies (even by SIGKILL)."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    if os.getppid() == 1:      # the driver died before the line above ran
+        os._exit(1)
+
+
+PR_SET_PDEATHSIG = 1
+
+
+def run_limits(scene):
+    """(seconds, MiB) a FreeFEM run may take: limits.time_s and limits.memory_mb (default 95 %
+    of the memory available now), and the process's own address-space limit (ulimit -v)."""
+    table = scene.get("limits") or {}
+    memory = table.get("memory_mb") or 0.95 * available_memory_mb()
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    ulimit = soft / 2 ** 20 if soft not in (resource.RLIM_INFINITY, -1) else None
+    return {"time_s": table.get("time_s", 7200.0), "memory_mb": memory, "ulimit_mb": ulimit,
+            "explicit_memory": table.get("memory_mb") is not None}
+
+
+class Guard:
+    """Watches a FreeFEM process: its peak resident memory (VmHWM), and stops it (SIGKILL)
+    beyond the time or memory limit; check() turns such a stop into one SceneError."""
+
+    def __init__(self, proc, limits):
+        self.proc, self.limits = proc, limits
+        self.peak_kb = 0
+        self.reason = None
+        self.start = time.monotonic()
+        self.done = threading.Event()
+        self.thread = threading.Thread(target=self.watch, daemon=True)
+        self.thread.start()
+
+    @property
+    def peak_mb(self):
+        return self.peak_kb / 1024.0
+
+    def watch(self):
+        path = Path(f"/proc/{self.proc.pid}/status")
+        while not self.done.wait(0.05):
+            try:
+                for line in path.read_text().splitlines():
+                    if line.startswith("VmHWM:"):
+                        self.peak_kb = max(self.peak_kb, int(line.split()[1]))
+            except (OSError, ValueError):
+                return
+            if self.peak_mb > self.limits["memory_mb"]:
+                self.reason = "memory"
+            elif time.monotonic() - self.start > self.limits["time_s"]:
+                self.reason = "time"
+            if self.reason:
+                try:
+                    self.proc.kill()
+                except OSError:
+                    pass
+                return
+
+    def stop(self):
+        self.done.set()
+        self.thread.join(timeout=1)
+
+    def check(self, name, returncode):
+        lim = self.limits
+        if self.reason == "time":
+            raise SceneError(f"scene {name}: FreeFEM ran longer than limits.time_s = {lim['time_s']:g} s and "
+                             f"was stopped (raise limits.time_s in the scene's [limits] table)")
+        if self.reason == "memory":
+            which = ("limits.memory_mb" if lim["explicit_memory"]
+                     else "the memory available (95 %, the default of limits.memory_mb)")
+            raise SceneError(f"scene {name}: FreeFEM used more than {lim['memory_mb']:.0f} MiB ({which}) and "
+                             f"was stopped: coarsen the mesh, lower adapt.max_dofs or raise limits.memory_mb")
+        if returncode != 0 and lim["ulimit_mb"] is not None and returncode in MEMORY_DEATHS \
+                and self.peak_mb > 0.5 * lim["ulimit_mb"]:
+            raise SceneError(f"scene {name}: FreeFEM died ({exit_name(returncode)}) after using "
+                             f"{self.peak_mb:.0f} MiB under this process's memory limit (ulimit -v "
+                             f"{lim['ulimit_mb']:.0f} MiB): out of memory; coarsen the mesh or raise the limit")
+
+
+# How a process ends when an allocation fails: a segmentation fault, an abort (std::bad_alloc),
+# FreeFEM's own exit 1 after "Out of memory".
+MEMORY_DEATHS = (-signal.SIGSEGV, -signal.SIGABRT, -signal.SIGBUS, 134, 139, 1)
+
+
+def exit_name(returncode):
+    return f"killed by {signal.Signals(-returncode).name}" if returncode < 0 else f"exit {returncode}"
 
 
 def write_scene_module(scene, module, script, staging):
@@ -286,11 +473,27 @@ def write_scene_module(scene, module, script, staging):
     return staging / "run.edp"
 
 
+# What a failed run keeps: its inputs, its log and why it failed. Whatever else FreeFEM wrote
+# (fields, tables, a truncated file after a signal) is removed: nothing that looks like a result.
+KEPT_ON_FAILURE = {MARKER, "scene.json", "scene.idp", "run.edp", "command.txt", "freefem.log",
+                   "failure.json", "mesh.msh"}
+
+
+def remove_outputs(staging):
+    for entry in list(os.scandir(staging)):
+        if entry.name in KEPT_ON_FAILURE:
+            continue
+        if entry.is_dir(follow_symlinks=False):
+            shutil.rmtree(entry.path, ignore_errors=True)
+        else:
+            os.unlink(entry.path)
+
+
 def keep_failure(staging, final, error, reason):
     """Turn the staging folder into FINAL.failed (never with a results.json); name it in the error."""
     try:
-        (staging / "results.json").unlink(missing_ok=True)
-        (staging / "driver.pid").unlink(missing_ok=True)
+        remove_outputs(staging)
+        (staging / MARKER).write_text(MARKER_FAILED)
         if not (staging / "failure.json").is_file():
             (staging / "failure.json").write_text(json.dumps({"status": "failed", "message": reason}) + "\n")
         failed = failed_folder(final)
