@@ -147,11 +147,8 @@ def build_parser(argv=None):
 def main(argv=None):
     parser = build_parser(argv)
     args = parser.parse_args(argv)
-    # "--set 'a=1 b=[0, 2]'" (as make passes SET) means two overrides: split at
-    # white space that starts a new KEY=, not inside values.
     if hasattr(args, "set"):
-        args.set = [item for chunk in args.set
-                    for item in re.split(r"\s+(?=[A-Za-z_][\w.]*=)", chunk.strip()) if item]
+        args.set = [item for chunk in args.set for item in split_overrides(chunk)]
     previous = {sig: signal.signal(sig, raise_interrupted) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         return args.func(args)
@@ -169,6 +166,42 @@ def main(argv=None):
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+KEY_START = re.compile(r"[A-Za-z_][\w.]*=")
+
+
+def split_overrides(chunk):
+    """"--set 'a=1 b=[0, 2]'" (as make passes SET) means two overrides: split at white space
+    that starts a new KEY=, not inside a quoted string or brackets ('d="load b=5 kN"' is one)."""
+    items, current, quote, depth = [], [], None, 0
+    i = 0
+    text = chunk.strip()
+    while i < len(text):
+        char = text[i]
+        if quote:
+            if char == "\\" and quote == '"' and i + 1 < len(text):
+                current.append(text[i:i + 2])
+                i += 2
+                continue
+            quote = None if char == quote else quote
+        elif char in "\"'":
+            quote = char
+        elif char in "[{":
+            depth += 1
+        elif char in "]}":
+            depth -= 1
+        elif char.isspace() and depth <= 0:
+            following = len(text) - len(text[i:].lstrip())     # the next non-blank character
+            if KEY_START.match(text, following):
+                items.append("".join(current))
+                current = []
+                i = following
+                continue
+        current.append(char)
+        i += 1
+    items.append("".join(current))
+    return [item.strip() for item in items if item.strip()]
 
 
 def raise_interrupted(signum, frame):

@@ -22,6 +22,7 @@ import math
 import numpy as np
 
 from driver.errors import SceneError
+from driver.schema import finite_float, finite_floats
 
 PRIMITIVES = {
     2: ("disk", "ellipse", "box", "half_plane", "polygon", "gmsh", "expression"),
@@ -29,6 +30,11 @@ PRIMITIVES = {
 }
 BOOLEANS = ("union", "intersection", "difference")
 MAX_POLYGON_EDGES = 400
+# Limits before work: a shape tree's depth, an expression's nesting, and the FreeFEM code a
+# shape may become (nested rotations multiply it: each level repeats its coordinates).
+MAX_TREE_DEPTH = 16
+MAX_EXPRESSION_DEPTH = 100
+MAX_CODE_CHARS = 200_000
 
 
 def fmt(value):
@@ -64,7 +70,15 @@ class Shape:
         return self.phi_local(*self.local_np(pts))
 
     def code(self, *coords):
-        return self.code_local(*self.local_code(coords))
+        coords = self.local_code(coords)
+        if sum(len(c) for c in coords) > MAX_CODE_CHARS:
+            raise SceneError(f"the shape tree becomes more than {MAX_CODE_CHARS:,} characters of FreeFEM code "
+                             f"(nested rotated shapes repeat their coordinates): flatten the tree")
+        text = self.code_local(*coords)
+        if len(text) > MAX_CODE_CHARS:
+            raise SceneError(f"the shape tree becomes more than {MAX_CODE_CHARS:,} characters of FreeFEM code: "
+                             f"use fewer or simpler shapes")
+        return text
 
     def measure(self):
         """Exact area (2D) or volume (3D) of {phi < 0}, or None (rigid placement keeps it)."""
@@ -269,28 +283,36 @@ class Expression(Shape):
             self.tree = ast.parse(text.replace("^", "**"), mode="eval").body
         except SyntaxError as exc:
             raise SceneError(f"{where}: not a valid expression ({exc.msg})") from None
+        except (RecursionError, MemoryError):
+            raise SceneError(f"{where}: the expression is nested too deep") from None
         self.where = where
         self.check(self.tree)
 
-    def check(self, node):
+    def check(self, node, depth=0):
         where = self.where
+        if depth > MAX_EXPRESSION_DEPTH:
+            raise SceneError(f"{where}: the expression is nested more than {MAX_EXPRESSION_DEPTH} deep "
+                             f"(a chain a + b + ... counts one level per term)")
+        depth += 1
         if isinstance(node, ast.Constant):
             if isinstance(node.value, bool) or not isinstance(node.value, (int, float)):
                 raise SceneError(f"{where}: only numbers, {', '.join(self.names)}, pi, + - * / ^ and "
                                  f"{', '.join(FUNCTIONS)} are allowed (found {node.value!r})")
+            if finite_float(node.value) is None:
+                raise SceneError(f"{where}: the number {str(node.value)[:20]}... is not a finite float")
         elif isinstance(node, ast.Name):
             if node.id not in self.names + ("pi",):
                 raise SceneError(f"{where}: unknown name {node.id!r} (allowed: {', '.join(self.names)}, pi)")
         elif isinstance(node, ast.BinOp) and type(node.op) in BINARY:
-            self.check(node.left)
-            self.check(node.right)
+            self.check(node.left, depth)
+            self.check(node.right, depth)
         elif isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
-            self.check(node.operand)
+            self.check(node.operand, depth)
         elif isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in FUNCTIONS:
             if node.keywords or len(node.args) != FUNCTIONS[node.func.id]:
                 raise SceneError(f"{where}: {node.func.id} takes {FUNCTIONS[node.func.id]} argument(s)")
             for arg in node.args:
-                self.check(arg)
+                self.check(arg, depth)
         else:
             raise SceneError(f"{where}: only numbers, {', '.join(self.names)}, pi, + - * / ^ and "
                              f"{', '.join(FUNCTIONS)} are allowed")
@@ -359,7 +381,7 @@ class Boolean(Shape):
 
 def rotation_matrix(dim, rotate, where):
     if dim == 2:
-        if not isinstance(rotate, (int, float)) or isinstance(rotate, bool) or not math.isfinite(rotate):
+        if finite_float(rotate) is None:
             raise SceneError(f"{where}: expected an angle in degrees")
         a = math.radians(rotate)
         return [[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]]
@@ -373,18 +395,14 @@ def rotation_matrix(dim, rotate, where):
 
 
 def numbers(value, length, where):
-    if (not isinstance(value, list) or len(value) != length
-            or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value)):
-        raise SceneError(f"{where}: expected {length} numbers, got {value!r}")
-    value = [float(v) for v in value]
-    if not all(math.isfinite(v) for v in value):
-        raise SceneError(f"{where}: numbers must be finite, got {value!r}")
-    return value
+    if finite_floats(value, length) is None:
+        raise SceneError(f"{where}: expected {length} finite numbers, got {str(value)[:80]}")
+    return finite_floats(value, length)
 
 
 def positive_number(value, where):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-        raise SceneError(f"{where}: must be a number > 0, got {value!r}")
+    if finite_float(value) is None or value <= 0:
+        raise SceneError(f"{where}: must be a number > 0, got {str(value)[:40]}")
     return float(value)
 
 
@@ -425,8 +443,10 @@ SHAPE_DOCS = {
 }
 
 
-def read_shape(data, dim, where, base_dir=None, mesher=None):
+def read_shape(data, dim, where, base_dir=None, mesher=None, depth=0):
     """A validated Shape from a scene table (where: 'file: key body1.shape')."""
+    if depth > MAX_TREE_DEPTH:
+        raise SceneError(f"{where}: shapes nested more than {MAX_TREE_DEPTH} deep")
     if not isinstance(data, dict):
         raise SceneError(f"{where}: expected a table with a 'type' (e.g. {{ type = \"disk\", ... }})")
     kind = data.get("type")
@@ -492,7 +512,7 @@ def read_shape(data, dim, where, base_dir=None, mesher=None):
     items = need("of")
     if not isinstance(items, list) or len(items) < (2 if kind != "union" else 1):
         raise SceneError(f"{where}.of: expected a list of shapes (at least two for {kind})")
-    children = [read_shape(item, dim, f"{where}.of.{i}", base_dir, mesher) for i, item in enumerate(items)]
+    children = [read_shape(item, dim, f"{where}.of.{i}", base_dir, mesher, depth + 1) for i, item in enumerate(items)]
     return Boolean(*args, kind, children)
 
 
@@ -502,10 +522,56 @@ def checked_polygon(poly, where):
     for (ax, ay), (bx, by) in poly.edges:
         if ax == bx and ay == by:
             raise SceneError(f"{where}: two consecutive vertices coincide at ({ax:g}, {ay:g})")
+    crossing = first_crossing(poly.loops)
+    if crossing is not None:
+        raise SceneError(f"{where}: the outline crosses itself near ({crossing[0]:.4g}, {crossing[1]:.4g}); "
+                         f"a polygon's loops must be simple and must not cross each other")
     area = poly.measure()
     if area is not None and area <= 0:
         raise SceneError(f"{where}: the polygon has zero area")
     return poly
+
+
+def first_crossing(loops):
+    """A point where two edges of the loops meet other than at their shared vertex (the loops
+    cross themselves or each other, or an edge folds back on the previous one), or None."""
+    start, end, ids = [], [], []
+    for k, loop in enumerate(loops):
+        n = len(loop)
+        for i in range(n):
+            start.append(loop[i - 1])
+            end.append(loop[i])
+            ids.append(((k, (i - 1) % n), (k, i)))
+    a, b = np.array(start, float), np.array(end, float)
+    d = b - a
+    scale = float(np.abs(np.vstack([a, b])).max()) or 1.0
+    tol = 1e-12 * scale * scale
+
+    def cross(u, v):
+        return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+
+    for i in range(len(a)):
+        j = np.arange(i + 1, len(a))
+        if j.size == 0:
+            break
+        shared = np.array([bool(set(ids[i]) & set(ids[m])) for m in j])
+        o1 = cross(d[j], a[i] - a[j])      # where edge i's ends lie against edge j
+        o2 = cross(d[j], b[i] - a[j])
+        o3 = cross(d[i], a[j] - a[i])      # and edge j's ends against edge i
+        o4 = cross(d[i], b[j] - a[i])
+        straddle = (o1 * o2 <= tol) & (o3 * o4 <= tol)
+        collinear = (np.abs(o3) <= tol) & (np.abs(o4) <= tol)
+        # collinear pieces meet when their projections on edge i overlap (beyond a shared end)
+        t0 = ((a[j] - a[i]) @ d[i]) / (d[i] @ d[i])
+        t1 = ((b[j] - a[i]) @ d[i]) / (d[i] @ d[i])
+        lo, hi = np.minimum(t0, t1), np.maximum(t0, t1)
+        overlap = collinear & (np.minimum(hi, 1.0) - np.maximum(lo, 0.0) > 1e-9)
+        hit = np.where(shared, overlap, straddle & (~collinear | overlap))
+        if hit.any():
+            k = int(np.argmax(hit))
+            t = o1[k] / (o1[k] - o2[k]) if abs(o1[k] - o2[k]) > tol else float(np.clip(lo[k], 0.0, 1.0))
+            return tuple(float(v) for v in a[i] + t * d[i])
+    return None
 
 
 # ---------------------------------------------------------------- placement checks

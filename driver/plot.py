@@ -65,7 +65,15 @@ class RunData:
 
     def has_output(self, filename):
         """True when results.json lists the file (the run was asked for it) or it exists anyway."""
-        return filename in self.outputs.values() or (self.folder / filename).exists()
+        return filename in self.outputs.values() or self.file(filename).exists()
+
+    def file(self, filename):
+        """A file of the run folder: a name results.json gives must not lead outside it."""
+        path = (self.folder / str(filename)).resolve()
+        if not path.is_relative_to(self.folder.resolve()):
+            raise RunFolderError(f"{self.folder / 'results.json'}: names {str(filename)[:80]!r}, a file outside "
+                                 f"the run folder; only files inside it are read")
+        return path
 
     def subtitle(self):
         r = self.results
@@ -115,8 +123,16 @@ def read_results(folder):
     if results.get("status") not in (None, "converged", "ok"):
         raise RunFolderError(f"{path}: status {results.get('status')!r}, not a converged run")
     if results.get("script") not in ("fd_contact_2d", "fd_contact_3d", "contact_foundation_2d"):
-        raise RunFolderError(f"{path}: unknown or missing 'script' ({results.get('script')!r})")
+        raise RunFolderError(f"{path}: unknown or missing 'script' ({str(results.get('script'))[:40]!r})")
+    for key in TABLES:
+        if key in results and not isinstance(results[key], dict):
+            raise RunFolderError(f"{path}: '{key}' is a {type(results[key]).__name__}, not a table")
     return results
+
+
+# The entries of results.json that are tables (JSON objects) when present.
+TABLES = ("contact", "steps", "newton", "outputs", "balance", "estimator", "reference", "timings_cpu_s",
+          "areas", "volumes", "linear_solver", "reactions", "probes")
 
 
 def read_scene(folder):
@@ -144,7 +160,7 @@ def one_line(text):
 def read_csv(run, filename, columns):
     import pandas as pd
 
-    path = run.folder / filename
+    path = run.file(filename)
     if not path.is_file():
         raise RunFolderError(f"{path}: missing (results.json lists it)")
     try:
@@ -168,7 +184,7 @@ def read_csv(run, filename, columns):
 def read_vtu(run, filename):
     import meshio
 
-    path = run.folder / filename
+    path = run.file(filename)
     if not path.is_file():
         raise RunFolderError(f"{path}: missing (results.json lists it)")
     try:
@@ -348,7 +364,7 @@ def bodies_2d(run, scale):
         pieces, u1_field = [], None
         for i, filename in enumerate(per_body, start=1):
             mesh = read_vtu(run, filename)
-            path = run.folder / filename
+            path = run.file(filename)
             tris = cells_of(mesh, path, "triangle", 3)
             xy = np.asarray(mesh.points[:, :2], dtype=float)
             u = point_field(mesh, path, "displacement", f"u{i}", "u", size=2)
@@ -363,7 +379,7 @@ def bodies_2d(run, scale):
         return None, None
     filename = "fields.vtu"
     mesh = read_vtu(run, filename)
-    path = run.folder / filename
+    path = run.file(filename)
     tris = cells_of(mesh, path, "triangle", 3)
     xy = np.asarray(mesh.points[:, :2], dtype=float)
     if run.script == "contact_foundation_2d":
@@ -517,7 +533,7 @@ def contact_window(frame, coords, h, pad=0.5):
 
 def save(fig, run, filename):
     """Write into the run folder through a temporary file there (never a partial PNG)."""
-    target = run.folder / filename
+    target = run.file(filename)
     handle, tmp = tempfile.mkstemp(prefix=".plot-", suffix=".png", dir=run.folder)
     os.close(handle)
     try:
@@ -765,7 +781,7 @@ def bodies_3d(run):
         if not run.has_output(filename):
             return None
         mesh = read_vtu(run, filename)
-        path = run.folder / filename
+        path = run.file(filename)
         tets = cells_of(mesh, path, "tetra", 4)
         u = point_field(mesh, path, "displacement", f"u{i}", size=3)
         vm = point_field(mesh, path, "von_mises")
@@ -919,6 +935,14 @@ def plot_run(folder, plane=None, scale=1.0, note=None):
             print(f"note: {text}", file=sys.stderr)
     if not math.isfinite(scale):
         raise RunFolderError(f"--scale {scale}: not a finite number")
+    try:
+        return plot_checked(folder, plane, scale, note)
+    except (AttributeError, TypeError, KeyError, IndexError, ValueError) as exc:
+        raise RunFolderError(f"{folder}: a file of the run is malformed ({type(exc).__name__}: "
+                             f"{one_line(exc)[:120]})") from None
+
+
+def plot_checked(folder, plane, scale, note):
     run = RunData(folder)
     if not os.access(run.folder, os.W_OK):
         raise RunFolderError(f"{run.folder}: not writable, the figures are written into the run folder")

@@ -616,9 +616,9 @@ def schema_rows(schema, prefix=""):
 
 
 def script_schema(module):
-    from driver.scene import SCENE_HEADER
+    from driver.scene import full_schema
 
-    return dict(scene=SCENE_HEADER, **module.SCHEMA)
+    return full_schema(module)
 
 
 def scene_reference():

@@ -10,7 +10,7 @@ import tomllib
 from pathlib import Path
 
 from driver.errors import SceneError
-from driver.schema import Field, described, validate
+from driver.schema import Field, described, positive, validate
 
 SAFE_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}")
 
@@ -31,6 +31,23 @@ SCENE_HEADER = {
 }
 
 
+# What a run may take (the driver stops a run beyond them: exit 2). Not sent to FreeFEM.
+LIMITS = {
+    "time_s": Field("float", default=7200.0, check=positive, unit="s",
+                    doc="wall-time limit of the FreeFEM run; the run is stopped beyond it (exit 2)"),
+    "memory_mb": Field("float", default=None, check=positive, unit="MiB",
+                       doc="resident-memory limit of the FreeFEM run (default: 95 % of the memory available "
+                           "when it starts); the run is stopped beyond it (exit 2)"),
+    "gmsh_s": Field("float", default=60.0, check=positive, unit="s",
+                    doc="wall-time limit of each gmsh run (gmsh shapes, gmsh meshes)"),
+}
+
+
+def full_schema(module):
+    """Every table a scene of this script module may hold."""
+    return dict(scene=SCENE_HEADER, **module.SCHEMA, limits=LIMITS)
+
+
 def script_modules():
     # Imported here so that each script module can import this one.
     from driver import fd2d, fd3d, foundation
@@ -47,8 +64,10 @@ def parse_override(text):
     if not key:
         raise SceneError(f"override '{text}': empty key")
     try:
-        value = tomllib.loads(f"v = {raw.strip()}")["v"]
-    except tomllib.TOMLDecodeError:
+        value = parse_toml(f"v = {raw.strip()}", f"override '{text}'")["v"]
+    except SceneError as exc:
+        if "nested" in str(exc):
+            raise
         value = raw.strip()          # bare words are strings: method.stabilization=ghost
     return key.split("."), value
 
@@ -89,15 +108,49 @@ def read_text_file(path, what):
         raise SceneError(f"{path}: not UTF-8 text (byte {exc.start}); a {what} is TOML text") from None
 
 
+MAX_TOML_DEPTH = 40
+
+
+def parse_toml(text, source):
+    """The tables of a TOML text, or one SceneError: malformed, or nested deeper than a scene needs
+    (checked before parsing: the TOML reader recurses once per level)."""
+    depth = deepest = 0
+    quote = comment = escaped = None
+    for char in text:
+        if comment:
+            comment = char != "\n"
+        elif quote:
+            if escaped:
+                escaped = False
+            elif char == "\\" and quote == '"':
+                escaped = True
+            elif char == quote:
+                quote = None
+        elif char == "#":
+            comment = True
+        elif char in "\"'":
+            quote = char
+        elif char in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif char in "]}":
+            depth -= 1
+    if deepest > MAX_TOML_DEPTH:
+        raise SceneError(f"{source}: arrays or tables nested {deepest} deep; at most {MAX_TOML_DEPTH}")
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{source}: malformed TOML: {exc}") from None
+    except RecursionError:
+        raise SceneError(f"{source}: arrays or tables nested too deep") from None
+
+
 def load_scene(path, overrides=()):
     """Read, override and validate a scene; return (scene dict, script module)."""
     path = Path(path)
     source = str(path)
     text = read_text_file(path, "scene file")
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{source}: malformed TOML: {exc}") from None
+    data = parse_toml(text, source)
     data = copy.deepcopy(data)
     for text_override in overrides:
         keys, value = parse_override(text_override)
@@ -108,8 +161,7 @@ def load_scene(path, overrides=()):
         known = ", ".join(sorted(modules))
         raise SceneError(f"{source}: key 'scene.script': unknown script {header['script']!r} (known: {known})")
     module = modules[header["script"]]
-    schema = dict(module.SCHEMA, scene=SCENE_HEADER)
-    scene = validate(data, schema, source)
+    scene = validate(data, full_schema(module), source)
     module.check(scene, source)
     scene["_source"] = source
     return scene, module

@@ -8,6 +8,27 @@ import math
 from driver.errors import SceneError
 
 REQUIRED = object()
+MAX_INT = 999_999_999     # the scripts' integer flags hold at most 9 digits (freefem/lib/core/args.idp)
+
+
+def finite_float(value):
+    """value as a finite float, or None (not a number, a boolean, inf, nan, or an integer too
+    large for a float)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    try:
+        value = float(value)
+    except OverflowError:
+        return None
+    return value if math.isfinite(value) else None
+
+
+def finite_floats(values, length=None):
+    """A list of finite floats (of the given length), or None."""
+    if not isinstance(values, list) or (length is not None and len(values) != length):
+        return None
+    out = [finite_float(v) for v in values]
+    return None if any(v is None for v in out) else out
 
 
 class Field:
@@ -31,12 +52,15 @@ class Field:
         if kind == "float":
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise SceneError(f"{where}: expected a number, got {type_name(value)} {value!r}")
+            if finite_float(value) is None:
+                raise SceneError(f"{where}: must be a finite number, got {str(value)[:40]}")
             value = float(value)
-            if not math.isfinite(value):
-                raise SceneError(f"{where}: must be finite, got {value!r}")
         elif kind == "int":
             if isinstance(value, bool) or not isinstance(value, int):
                 raise SceneError(f"{where}: expected an integer, got {type_name(value)} {value!r}")
+            if not -MAX_INT <= value <= MAX_INT:
+                raise SceneError(f"{where}: must lie in [-{MAX_INT}, {MAX_INT}] (FreeFEM reads at most 9 "
+                                 f"digits), got {str(value)[:40]}")
         elif kind == "str":
             if not isinstance(value, str):
                 raise SceneError(f"{where}: expected a string, got {type_name(value)} {value!r}")
@@ -53,9 +77,9 @@ class Field:
                 raise SceneError(f"{where}: expected a list of numbers, got {value!r}")
             if self.length is not None and len(value) != self.length:
                 raise SceneError(f"{where}: expected {self.length} numbers, got {len(value)}")
-            value = [float(v) for v in value]
-            if not all(math.isfinite(v) for v in value):
-                raise SceneError(f"{where}: numbers must be finite, got {value!r}")
+            if finite_floats(value) is None:
+                raise SceneError(f"{where}: numbers must be finite, got {str(value)[:80]}")
+            value = finite_floats(value)
         if self.choices is not None and value not in self.choices:
             options = ", ".join(repr(c) for c in self.choices)
             raise SceneError(f"{where}: must be one of {options}, got {value!r}")
@@ -237,10 +261,10 @@ def two_body_solver_schema(floating_body, contact_points):
 
 # Estimator-driven adaptation, the same keys for every script that adapts.
 ADAPT_SCHEMA = {
-    "steps": Field("int", flag="adapt_steps", default=0, check=at_least(0),
+    "steps": Field("int", flag="adapt_steps", default=0, check=between(0, 50),
                    doc="mesh adaptations after the first solve, each followed by a new solve (0: none)"),
-    "growth": Field("float", flag="adapt_growth", default=2.0, check=positive, unit="1",
-                    doc="wanted element-count growth per step"),
+    "growth": Field("float", flag="adapt_growth", default=2.0, check=open_interval(0.0, 16.0 + 1e-12, "(0, 16]"),
+                    unit="1", doc="wanted element-count growth per step"),
     "max_dofs": Field("int", flag="adapt_max_dofs", default=200000, check=positive,
                       doc="DOF budget: no adaptation step whose mesh would exceed it (growth x DOFs)"),
     "eta_target": Field("float", flag="adapt_eta_target", default=0.0, check=at_least(0.0), unit="as eta",

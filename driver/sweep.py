@@ -23,6 +23,8 @@ Ctrl-C (SIGINT): the first one stops submitting and waits for the running points
 (their rows are stored), the second one aborts them.
 """
 
+import contextlib
+import fcntl
 import functools
 import hashlib
 import importlib
@@ -38,7 +40,6 @@ import sys
 import tempfile
 import threading
 import time
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -57,6 +58,8 @@ CODE_FILES = ("driver/runner.py", "driver/scene.py", "driver/schema.py", "driver
 SWEEP_KEYS = {"name", "scene", "set", "description"}
 DEBUG_KEYS = {"sleep_s", "crash_points"}
 TOP_KEYS = {"sweep", "grid", "zip", "debug"}
+
+MAX_POINTS = 10_000           # points of one sweep file, counted before the grid is built
 
 # Defaults the `study` command sets for studies that run their points here.
 SETTINGS = {"workers": None, "scheduler": None}
@@ -183,34 +186,55 @@ class Sweep:
 
 
 def flatten_params(table, source, section, prefix=""):
-    """{'method': {'theta': [..]}} or {'method.theta': [..]} -> {'method.theta': [..]}."""
+    """{'method': {'theta': [..]}} or {'method.theta': [..]} -> {'method.theta': [..]}; a key
+    given twice (both ways) or a value listed twice (1 and 1.0 are one value) is refused."""
     out = {}
     for key, value in table.items():
         name = f"{prefix}{key}"
         if isinstance(value, dict):
-            out.update(flatten_params(value, source, section, prefix=name + "."))
+            inner = flatten_params(value, source, section, prefix=name + ".")
         elif isinstance(value, list):
             if not value:
                 raise SceneError(f"{source}: [{section}] '{name}': empty list (nothing to sweep)")
-            out[name] = value
+            if section == "grid":
+                refuse_repeats([(v,) for v in value], f"{source}: [grid] '{name}'")
+            inner = {name: value}
         else:
             raise SceneError(f"{source}: [{section}] '{name}': expected a list of values, "
-                             f"got {value!r}")
+                             f"got {str(value)[:80]}")
+        for name in inner:
+            if name in out:
+                raise SceneError(f"{source}: [{section}] '{name}' is given twice (as a dotted and a "
+                                 f"quoted key, or in two tables)")
+        out.update(inner)
     return out
+
+
+def refuse_repeats(rows, where):
+    """Refuse a value (a zip's tuple of values) listed twice: the same run twice."""
+    seen = {}
+    for row in rows:
+        same = seen.setdefault(tuple(value_identity(v) for v in row), row)
+        if same is not row:
+            text = ", ".join(toml_literal(v) for v in row)
+            first = ", ".join(toml_literal(v) for v in same)
+            raise SceneError(f"{where}: the value {text} is listed twice (as {first} and {text})")
+
+
+def value_identity(value):
+    """What makes two swept values the same run: numbers by value (1 == 1.0), the rest as JSON."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return ("number", float(value))
+    return ("json", json.dumps(value, sort_keys=True, default=str))
 
 
 def load_sweep(path):
     """Read and expand a sweep file; every point is validated as a scene before anything runs."""
-    from driver.scene import load_scene
-
-    from driver.scene import read_text_file
+    from driver.scene import load_scene, parse_toml, read_text_file, safe_name
 
     path = Path(path)
     source = str(path)
-    try:
-        data = tomllib.loads(read_text_file(path, "sweep file"))
-    except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{source}: malformed TOML: {exc}") from None
+    data = parse_toml(read_text_file(path, "sweep file"), source)
     unknown = set(data) - TOP_KEYS
     if unknown:
         raise SceneError(f"{source}: unknown section or key {sorted(unknown)[0]!r} "
@@ -228,8 +252,9 @@ def load_sweep(path):
     if not scene.is_file():
         raise SceneError(f"{source}: key 'sweep.scene': base scene {head['scene']!r} not found ({scene})")
     name = head.get("name", path.stem)
-    if not isinstance(name, str) or not name or not all(c.isalnum() or c in "-_." for c in name):
-        raise SceneError(f"{source}: key 'sweep.name': {name!r} is not a plain name (letters, digits, - _ .)")
+    if not isinstance(name, str) or safe_name(name):
+        raise SceneError(f"{source}: key 'sweep.name': {str(name)[:60]!r} is not a plain name (1-100 letters, "
+                         f"digits, - _ ., not starting with . or -)")
     fixed = head.get("set", [])
     if not isinstance(fixed, list) or not all(isinstance(s, str) for s in fixed):
         raise SceneError(f"{source}: key 'sweep.set': expected a list of \"KEY=VALUE\" strings")
@@ -254,9 +279,13 @@ def load_sweep(path):
             raise SceneError(f"{source}: [zip] '{sorted(seen & set(group))[0]}' is swept twice")
         seen |= set(group)
         if group:
+            refuse_repeats(list(zip(*group.values())), f"{source}: [zip] {', '.join(group)}")
             factors.append([dict(zip(group, values)) for values in zip(*group.values())])
     if not factors:
         raise SceneError(f"{source}: empty grid: give [grid] and/or [zip] lists of values to sweep")
+    count = math.prod(len(f) for f in factors)
+    if count > MAX_POINTS:
+        raise SceneError(f"{source}: the grid has {count:,} points; at most {MAX_POINTS:,} (split the sweep)")
     params = [dict(kv for part in combo for kv in part.items()) for combo in itertools.product(*factors)]
 
     sweep = Sweep(name=name, source=path, scene=scene, fixed=list(fixed), params=params, debug=debug)
@@ -390,9 +419,11 @@ class RowStore:
         if self.folder.is_dir():
             for path in self.folder.glob("*.json"):
                 try:
-                    self.records[path.stem] = json.loads(path.read_text())
-                except (OSError, ValueError):
+                    record = json.loads(path.read_text())
+                except (OSError, ValueError, RecursionError):
                     continue                          # unreadable: the point runs again
+                if valid_record(record):
+                    self.records[path.stem] = record  # anything else (a hand-edited row): runs again
 
     def done(self, point_hash, rerun_failed=False):
         record = self.records.get(point_hash)
@@ -406,6 +437,12 @@ class RowStore:
         write_atomic(self.folder / f"{point.hash}.json", json.dumps(record, indent=1, default=str))
         self.records[point.hash] = record
         return record
+
+
+def valid_record(record):
+    """A stored row as put() writes it: a table whose row is a table with a string status."""
+    return (isinstance(record, dict) and isinstance(record.get("row"), dict)
+            and isinstance(record["row"].get("status"), str))
 
 
 def row_of(point, record):
@@ -517,6 +554,34 @@ def run_points(points, name, workers=None, scheduler=None, sweep_dir=None, table
     workers = workers if workers is not None else SETTINGS["workers"]
     scheduler = scheduler if scheduler is not None else SETTINGS["scheduler"]
     sweep_dir = Path(sweep_dir) if sweep_dir else SWEEPS_DIR / name
+    with sweep_lock(sweep_dir, name):
+        return run_locked(points, name, workers, scheduler, sweep_dir, table, max_retries, rerun_failed, quiet)
+
+
+@contextlib.contextmanager
+def sweep_lock(sweep_dir, name):
+    """One sweep process per sweep folder (a second one would run every point again); the
+    lock dies with its process. Staging folders left by killed points become NAME.failed."""
+    from driver.runner import retire_stale_siblings
+
+    sweep_dir.mkdir(parents=True, exist_ok=True)
+    fd = os.open(sweep_dir / ".sweep-lock", os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            owner = os.pread(fd, 32, 0).decode(errors="replace").strip()
+            raise SceneError(f"sweep {name}: already running in {sweep_dir}"
+                             + (f" (pid {owner})" if owner else "") + "; wait for it or use another --runs")
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        retire_stale_siblings(sweep_dir / "runs")
+        yield
+    finally:
+        os.close(fd)
+
+
+def run_locked(points, name, workers, scheduler, sweep_dir, table, max_retries, rerun_failed, quiet):
     store = RowStore(sweep_dir)
     todo = [p for p in points if not store.done(p.hash, rerun_failed)]
     progress = Progress(name, len(points), len(points) - len(todo), stream=open(os.devnull, "w")
