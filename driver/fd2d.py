@@ -23,8 +23,8 @@ from driver.errors import SceneError
 from driver.scene_module import check_two_bodies, support_lines
 from driver.scene_module import scene_module  # noqa: F401  (the runner calls module.scene_module)
 from driver.scene import SCENE_HEADER
-from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, at_least, open_interval, positive, put_declared,
-                           two_body_method_schema, two_body_solver_schema)
+from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, at_least, between, open_interval, positive,
+                           put_declared, two_body_method_schema, two_body_solver_schema)
 
 STABILIZATIONS = ("auto", "none", "neighbour", "ghost")
 GAMMA_SCALINGS = ("shear", "none", "body1", "mean_compliance")
@@ -68,8 +68,9 @@ SCHEMA = {
         "ymax": Field("float", flag="ymax", default=0.5, unit="length", doc="background box, top (> ymin)"),
     },
     "mesh": {
-        "nx": Field("int", flag="nx", default=80, check=at_least(2),
-                    doc="elements along x (h = width/nx); along y as many as keep them as tall as wide"),
+        "nx": Field("int", flag="nx", default=80, check=between(2, 4000),
+                    doc="elements along x (h = width/nx); along y as many as keep them as tall as wide (at most "
+                        "4000: about 32 nx^2 background DOFs)"),
     },
     "body1": body_schema({
         "shape": Field("tree", default="disk", doc=SHAPE_DOC.format(legacy='"disk"')),

@@ -25,8 +25,8 @@ from driver.fd2d import body_schema
 from driver.scene_module import check_two_bodies, support_lines
 from driver.scene_module import scene_module  # noqa: F401  (the runner calls module.scene_module)
 from driver.scene import SCENE_HEADER
-from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, at_least, positive, put_declared,
-                           two_body_method_schema, two_body_solver_schema)
+from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, Range, at_least, between, positive,
+                           put_declared, two_body_method_schema, two_body_solver_schema)
 
 STABILIZATIONS = ("auto", "none", "neighbour")
 
@@ -42,8 +42,9 @@ SCHEMA = {
         "zmax": Field("float", flag="zmax", default=0.5, unit="length", doc="background box, top (> zmin)"),
     },
     "mesh": {
-        "nx": Field("int", flag="nx", default=10, check=at_least(2),
-                    doc="cells along x (h = width/nx); along y and z as many as keep them cubic"),
+        "nx": Field("int", flag="nx", default=10, check=between(2, 150),
+                    doc="cells along x (h = width/nx); along y and z as many as keep them cubic (at most 150: a "
+                        "P1 run at nx = 48 takes about 2 GiB)"),
         "grade_h": Field("float", flag="grade_h", default=0.0, check=at_least(0.0), unit="length",
                          doc="0: uniform; else one tetgen pass refines toward the contact point to this edge size"),
         "grade_radius": Field("float", flag="grade_radius", default=0.1, check=at_least(0.0), unit="length",
@@ -95,7 +96,9 @@ SCHEMA = {
     "solver": two_body_solver_schema("ball", Field(
         "int", flag="contact_qp", default=0, choices=(0, 1, 3, 6),
         doc="points per interface triangle (0: 3 for P1, 6 for P2)")),
-    "adapt": dict(ADAPT_SCHEMA, switch=Field(
+    "adapt": dict(ADAPT_SCHEMA, growth=Field(
+        "float", flag="adapt_growth", default=2.0, check=Range(1.0, 16.0, lo_open=True), unit="1",
+        doc="wanted element-count growth per step (> 1: tetgen only refines)"), switch=Field(
         "str", flag="adapt_switch", default="rqaAQ",
         doc="tetgen switches of tetgreconstruction (r refine, q quality, a volume bounds); must start with r, "
             "hold a and no p; steps refine by tetgen, max_coarsen is unused (tetgen never coarsens)")),

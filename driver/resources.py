@@ -2,8 +2,8 @@
 
 The fits come from measured runs (results/bench.csv for 2D, results/fd3d_convergence.csv
 for 3D: DOFs and peak resident memory per mesh size). They are deliberately on the
-high side: their purpose is to refuse a run that cannot fit (mesh.nx = 100000 would
-otherwise crash FreeFEM after minutes), not to predict its cost.
+high side: their purpose is to refuse a run that cannot fit (a mesh far beyond the
+memory would otherwise crash FreeFEM after minutes), not to predict its cost.
 """
 
 import math

@@ -23,6 +23,9 @@ def safe_name(value):
     return None
 
 
+safe_name.flag_rule = "name"   # core/args.idp checks the same pattern (argSafeName)
+
+
 SCENE_HEADER = {
     "name": Field("str", flag="name", check=safe_name, doc="scene name, used for run folders"),
     "script": Field("str", doc="FreeFEM top-level script (without .edp) that solves the scene: fd_contact_2d, "

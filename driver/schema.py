@@ -8,7 +8,7 @@ import math
 from driver.errors import SceneError
 
 REQUIRED = object()
-MAX_INT = 999_999_999     # the scripts' integer flags hold at most 9 digits (freefem/lib/core/args.idp)
+INT_LIMIT = 2**31 - 1   # the largest integer magnitude a flag takes (core/args.idp, argInt)
 
 
 def finite_float(value):
@@ -58,9 +58,8 @@ class Field:
         elif kind == "int":
             if isinstance(value, bool) or not isinstance(value, int):
                 raise SceneError(f"{where}: expected an integer, got {type_name(value)} {value!r}")
-            if not -MAX_INT <= value <= MAX_INT:
-                raise SceneError(f"{where}: must lie in [-{MAX_INT}, {MAX_INT}] (FreeFEM reads at most 9 "
-                                 f"digits), got {str(value)[:40]}")
+            if abs(value) > INT_LIMIT:
+                raise SceneError(f"{where}: must lie in [-{INT_LIMIT}, {INT_LIMIT}], got {str(value)[:40]}")
         elif kind == "str":
             if not isinstance(value, str):
                 raise SceneError(f"{where}: expected a string, got {type_name(value)} {value!r}")
@@ -104,32 +103,101 @@ def type_name(value):
 
 
 def described(description):
-    """Attach the readable range that the scene reference prints for a check."""
+    """Attach the readable range that the scene reference prints for a check that is not a Range."""
     def attach(check):
         check.description = description
         return check
     return attach
 
 
-@described("> 0")
-def positive(value):
-    return None if value > 0 else "must be > 0"
+def bound_text(bound):
+    """A bound as the scene reference and the FreeFEM rule files print it: 2, 0.5, 1e-12 (exact)."""
+    bound = float(bound)
+    return str(int(bound)) if bound.is_integer() and abs(bound) < 1e15 else repr(bound)
+
+
+class Range:
+    """The check lo < or <= value < or <= hi (lo or hi None: no bound on that side).
+
+    Called with a value it returns the error text or None; its bounds and ends are
+    readable, so the scene reference and the FreeFEM scripts' flag rules (both from
+    description, see flag_rule) are written from the check the driver applies."""
+
+    def __init__(self, lo=None, hi=None, lo_open=False, hi_open=False):
+        self.lo, self.hi, self.lo_open, self.hi_open = lo, hi, lo_open, hi_open
+
+    def __call__(self, value):
+        above = self.lo is None or (value > self.lo if self.lo_open else value >= self.lo)
+        below = self.hi is None or (value < self.hi if self.hi_open else value <= self.hi)
+        return None if above and below else f"must {'be' if self.hi is None else 'lie in'} {self.written(str)}"
+
+    def written(self, show):
+        """'>= 1', '(0, 1]': the range with its bounds written by show."""
+        if self.hi is None:
+            return f"{'>' if self.lo_open else '>='} {show(self.lo)}"
+        return f"{'(' if self.lo_open else '['}{show(self.lo)}, {show(self.hi)}{')' if self.hi_open else ']'}"
+
+    @property
+    def description(self):
+        """The range as the scene reference and the FreeFEM flag rules print it."""
+        return self.written(bound_text)
+
+
+positive = Range(0, lo_open=True)
+
+
+def greater_than(bound):
+    return Range(bound, lo_open=True)
 
 
 def at_least(bound):
-    return described(f">= {bound:g}")(lambda value: None if value >= bound else f"must be >= {bound}")
+    return Range(bound)
 
 
 def between(lo, hi):
     """lo <= value <= hi."""
-    return described(f"[{lo:g}, {hi:g}]")(
-        lambda value: None if lo <= value <= hi else f"must lie in [{lo}, {hi}]")
+    return Range(lo, hi)
 
 
-def open_interval(lo, hi, description=None):
-    """lo < value < hi; description overrides the printed range (e.g. "(0, 1]" for a bound padded by round-off)."""
-    return described(description or f"({lo:g}, {hi:g})")(
-        lambda value: None if lo < value < hi else f"must lie in ({lo}, {hi})")
+def open_interval(lo, hi):
+    """lo < value < hi."""
+    return Range(lo, hi, lo_open=True, hi_open=True)
+
+
+FLAG_KINDS = {"float": "real", "vector": "real", "int": "int", "bool": "bool", "str": "string"}
+
+
+def flag_rule(field, where):
+    """The rule a FreeFEM script applies to the field's flag (core/args.idp, argRule): its
+    kind (real, int, bool: 0 or 1, string, name: a safe scene name), then a range
+    ('>= 1', '(0, 1]') or the allowed values ('{auto, amd, scotch}')."""
+    kind = FLAG_KINDS[field.kind]
+    if field.check is not None:
+        if field.choices is not None or field.kind == "vector":
+            raise ValueError(f"{where}: a check with choices or on a vector has no flag rule")
+        if isinstance(field.check, Range):
+            return f"{kind} {field.check.description}"
+        if not hasattr(field.check, "flag_rule"):
+            raise ValueError(f"{where}: its check states no flag rule")
+        return field.check.flag_rule
+    if field.choices is not None:
+        if any(not str(c) or set(str(c)) & set(' ,{}"\\') for c in field.choices):
+            raise ValueError(f"{where}: a choice with a space, comma, brace, quote or backslash has no flag rule")
+        return kind + " {" + ", ".join(str(c) for c in field.choices) + "}"
+    return kind
+
+
+def flag_rules(schema, prefix=""):
+    """{flag: rule} for every flag the schema declares (one per component of a vector)."""
+    rules = {}
+    for key, spec in schema.items():
+        if isinstance(spec, dict):
+            rules.update(flag_rules(spec, f"{prefix}{key}."))
+        elif isinstance(spec, Field) and spec.flag:
+            names = spec.flag if isinstance(spec.flag, tuple) else (spec.flag,)
+            for name in names:
+                rules[name] = flag_rule(spec, f"{prefix}{key}")
+    return rules
 
 
 def validate(data, schema, source, prefix=""):
@@ -211,7 +279,7 @@ def two_body_method_schema(degree):
                        doc="Nitsche variant: 1 symmetric, 0 non-symmetric, -1 skew-symmetric (any real)"),
         "gamma0": Field("float", flag="gamma0", default=1.0 / 200.0, check=positive, unit="1",
                         doc="Nitsche parameter, gamma = gamma0 h_K / muStar (1/stress with gamma_scaling none)"),
-        "rho": Field("float", flag="rho", default=0.25, check=open_interval(0.0, 1.0 + 1e-12, "(0, 1]"), unit="1",
+        "rho": Field("float", flag="rho", default=0.25, check=Range(0.0, 1.0, lo_open=True), unit="1",
                      doc="neighbour stabilization: cut ratio |K cap Omega_i|/|K| below which an element "
                          "borrows its neighbour's stress"),
     }
@@ -263,7 +331,7 @@ def two_body_solver_schema(floating_body, contact_points):
 ADAPT_SCHEMA = {
     "steps": Field("int", flag="adapt_steps", default=0, check=between(0, 50),
                    doc="mesh adaptations after the first solve, each followed by a new solve (0: none)"),
-    "growth": Field("float", flag="adapt_growth", default=2.0, check=open_interval(0.0, 16.0 + 1e-12, "(0, 16]"),
+    "growth": Field("float", flag="adapt_growth", default=2.0, check=Range(0.0, 16.0, lo_open=True),
                     unit="1", doc="wanted element-count growth per step"),
     "max_dofs": Field("int", flag="adapt_max_dofs", default=200000, check=positive,
                       doc="DOF budget: no adaptation step whose mesh would exceed it (growth x DOFs)"),

@@ -181,7 +181,7 @@ def test_3d_box_face_traction_acts_on_the_exact_section(run_scene, geometry, low
 def test_3d_geometry_flag_is_checked(tmp_path):
     proc = run_freefem("fd_contact_3d.edp", "-nx", 4, "-geometry", "p2", "-outdir", tmp_path / "bad")
     assert proc.returncode != 0
-    assert "geometry must be p1 or curved" in proc.stdout + proc.stderr
+    assert "option -geometry: 'p2' must be one of {p1, curved}" in proc.stdout + proc.stderr
 
 
 # ---- problems without contact whose solutions are smooth (cases/verification) ----

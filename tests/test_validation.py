@@ -89,4 +89,4 @@ def test_newton_failure_is_reported(tmp_path):
 def test_freefem_direct_input_check():
     # The scripts check their own parameters when run directly, without the driver.
     proc = run_freefem("contact_foundation_2d.edp", "-gamma0", -1, "-outdir", "runs/test-direct")
-    assert proc.returncode == 2 and "gamma0 must be > 0" in proc.stdout + proc.stderr
+    assert proc.returncode == 2 and "option -gamma0: -1 must be > 0" in proc.stdout + proc.stderr
