@@ -129,7 +129,7 @@ class Range:
     def __call__(self, value):
         above = self.lo is None or (value > self.lo if self.lo_open else value >= self.lo)
         below = self.hi is None or (value < self.hi if self.hi_open else value <= self.hi)
-        return None if above and below else f"must {'be' if self.hi is None else 'lie in'} {self.written(str)}"
+        return None if above and below else f"must {'be' if self.hi is None else 'lie in'} {self.written(bound_text)}"
 
     def written(self, show):
         """'>= 1', '(0, 1]': the range with its bounds written by show."""

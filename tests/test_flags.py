@@ -11,6 +11,8 @@ a value outside its range) with exit 2 and a line naming the flag, before it
 creates its output folder.
 """
 
+import re
+
 import pytest
 
 from driver import readme
@@ -147,7 +149,7 @@ def test_direct_run_accepts_values_at_the_edges_of_their_rules(script, args):
 ])
 def test_driver_refuses_what_the_scripts_refuse(case, override, words):
     """The ranges added to the schema for the scripts' limits, and the integer limit of argInt."""
-    with pytest.raises(SceneError, match=r"key '[a-z_.]+': " + words.replace("[", r"\[").replace("]", r"\]")):
+    with pytest.raises(SceneError, match=r"key '[a-z_.]+': " + re.escape(words)):
         load_scene(REPO / case, [override])
 
 
