@@ -10,13 +10,15 @@ SUDO := $(shell [ "$$(id -u)" -eq 0 ] || echo sudo)
 # -threads: the plugin sets the count), where it gives the serial build's numbers to
 # the bit; more threads pay on large 3D runs (docs/benchmarks.md).
 # python3, python3-venv: Debian's interpreter and what `python3 -m venv` needs (ensurepip
-# and the pip wheel it installs), for the driver's virtual environment (setup-python).
+# and the pip wheel it installs), for the driver's virtual environment (setup-python);
+# ca-certificates: Debian's pip trusts only /etc/ssl/certs/ca-certificates.crt, which a
+# minimal Debian does not have.
 # libfreefem++-dev, libmumps-seq-dev, g++: to build the plugins (freefem/plugins:
 # the Newton's MUMPS instance, contact_mumps.cpp; the 2D curved cut cells, the
 # estimators' cut-edge pieces, the contact points' projections and the level-set
 # normals, curved_cells.cpp; the recovered contact pressure, pressure_recovery.cpp).
 DEBIAN_PACKAGES := freefem++ libfreefem++ gmsh libopenblas0-pthread libfreefem++-dev libmumps-seq-dev g++ \
-	python3 python3-venv
+	python3 python3-venv ca-certificates
 OPENBLAS := /usr/lib/x86_64-linux-gnu/openblas-pthread/libblas.so.3
 export FF_LOADPATH := /usr/lib/freefem++
 
@@ -46,7 +48,8 @@ setup-system:
 	@if ! command -v FreeFem++ >/dev/null || ! command -v gmsh >/dev/null \
 	    || [ ! -f /usr/lib/freefem++/iovtk.so ] || [ ! -f $(OPENBLAS) ] \
 	    || [ ! -f /usr/include/freefem++/ff++.hpp ] || [ ! -f /usr/include/dmumps_c.h ] || ! command -v g++ >/dev/null \
-	    || [ ! -x /usr/bin/python3 ] || [ -z "$(wildcard /usr/lib/python3*/ensurepip/__init__.py)" ]; then \
+	    || [ ! -x /usr/bin/python3 ] || [ -z "$(wildcard /usr/lib/python3*/ensurepip/__init__.py)" ] \
+	    || [ ! -f /etc/ssl/certs/ca-certificates.crt ]; then \
 	  echo "installing Debian packages: $(DEBIAN_PACKAGES)"; \
 	  $(SUDO) apt-get update -qq && \
 	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $(DEBIAN_PACKAGES) >/dev/null; \
