@@ -9,11 +9,16 @@ SUDO := $(shell [ "$$(id -u)" -eq 0 ] || echo sudo)
 # The threaded OpenBLAS runs on one thread unless a run asks for more (solver.threads,
 # -threads: the plugin sets the count), where it gives the serial build's numbers to
 # the bit; more threads pay on large 3D runs (docs/benchmarks.md).
+# python3, python3-venv: Debian's interpreter and what `python3 -m venv` needs (ensurepip
+# and the pip wheel it installs), for the driver's virtual environment (setup-python);
+# ca-certificates: Debian's pip trusts only /etc/ssl/certs/ca-certificates.crt, which a
+# minimal Debian does not have.
 # libfreefem++-dev, libmumps-seq-dev, g++: to build the plugins (freefem/plugins:
 # the Newton's MUMPS instance, contact_mumps.cpp; the 2D curved cut cells, the
 # estimators' cut-edge pieces, the contact points' projections and the level-set
 # normals, curved_cells.cpp; the recovered contact pressure, pressure_recovery.cpp).
-DEBIAN_PACKAGES := freefem++ libfreefem++ gmsh libopenblas0-pthread libfreefem++-dev libmumps-seq-dev g++
+DEBIAN_PACKAGES := freefem++ libfreefem++ gmsh libopenblas0-pthread libfreefem++-dev libmumps-seq-dev g++ \
+	python3 python3-venv ca-certificates
 OPENBLAS := /usr/lib/x86_64-linux-gnu/openblas-pthread/libblas.so.3
 export FF_LOADPATH := /usr/lib/freefem++
 
@@ -42,43 +47,68 @@ freefem/plugins/%.so: freefem/plugins/%.cpp $(PLUGIN_HEADERS) | setup-system
 setup-system:
 	@if ! command -v FreeFem++ >/dev/null || ! command -v gmsh >/dev/null \
 	    || [ ! -f /usr/lib/freefem++/iovtk.so ] || [ ! -f $(OPENBLAS) ] \
-	    || [ ! -f /usr/include/freefem++/ff++.hpp ] || [ ! -f /usr/include/dmumps_c.h ] || ! command -v g++ >/dev/null; then \
+	    || [ ! -f /usr/include/freefem++/ff++.hpp ] || [ ! -f /usr/include/dmumps_c.h ] || ! command -v g++ >/dev/null \
+	    || [ ! -x /usr/bin/python3 ] || [ -z "$(wildcard /usr/lib/python3*/ensurepip/__init__.py)" ] \
+	    || [ ! -f /etc/ssl/certs/ca-certificates.crt ]; then \
 	  echo "installing Debian packages: $(DEBIAN_PACKAGES)"; \
 	  $(SUDO) apt-get update -qq && \
 	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $(DEBIAN_PACKAGES) >/dev/null; \
 	fi
 
-# The check costs nothing when everything is installed: .setup-python lists the
-# interpreter and the file each package was found at, and while the stamp is newer
-# than requirements.txt, names the same interpreter and every file it lists exists,
-# no Python starts. Otherwise one Python process looks the packages up (find_spec
-# locates them without importing; importing them all costs about 1.3 s) and writes
-# the stamp, or exits 1 when one is missing: then pip installs requirements.txt and
-# the look-up runs again. A package removed, a new requirement or another PYTHON:
-# the check runs again.
+# The driver and pytest run in a virtual environment in the checkout, $(VENV), made
+# with $(PYTHON): Debian's own python3 refuses pip installs into the system
+# interpreter (PEP 668, externally managed), and a venv works the same with any
+# interpreter. $(VENV_MARK) records which PYTHON made it, so that make knows the
+# venv as its own: a $(VENV) without it (a user's) is never removed or changed,
+# make stops with one line instead. Another PYTHON makes the venv anew; the venv's
+# own interpreter, or any path to the same binary, counts as the same PYTHON.
+#
+# The check costs nothing when everything is installed: $(PYTHON_STAMP) lists the
+# venv's interpreter and the file each package was found at, and while the stamp is
+# newer than requirements.txt, the venv was made by the same PYTHON and every file
+# it lists exists, no Python starts. Otherwise one Python process looks the packages
+# up (find_spec locates them without importing; importing them all costs about
+# 1.3 s) and writes the stamp, or exits 1 when one is missing: then pip installs
+# requirements.txt into the venv and the look-up runs again. A package removed, a
+# new requirement or another PYTHON: the check runs again.
+VENV := .venv
+VENV_PYTHON := $(VENV)/bin/python
+VENV_MARK := $(VENV)/.made-by-make-setup
 PYTHON_PACKAGES := numpy pandas matplotlib meshio pytest scipy dask distributed tqdm
-PYTHON_STAMP := .setup-python
-PYTHON_STAMP_WRITE = $(PYTHON) -c "import importlib.util as u, os, sys; \
+PYTHON_STAMP := $(VENV)/.setup-python
+PYTHON_STAMP_WRITE = $(VENV_PYTHON) -c "import importlib.util as u, os, sys; \
 	specs = [u.find_spec(m) for m in sys.argv[3:]]; None in specs and sys.exit(1); \
 	f = sys.argv[2]; open(f + '.tmp', 'w').write('\\n'.join([sys.argv[1]] + [s.origin for s in specs]) + '\\n'); \
-	os.replace(f + '.tmp', f)" "$$(command -v $(PYTHON))" $(PYTHON_STAMP) $(PYTHON_PACKAGES)
-setup-python:
-	@if ! { [ $(PYTHON_STAMP) -nt requirements.txt ] && [ "$$(head -n 1 $(PYTHON_STAMP))" = "$$(command -v $(PYTHON))" ] \
-	        && tail -n +2 $(PYTHON_STAMP) | { while read -r f; do [ -e "$$f" ] || exit 1; done; }; }; then \
+	os.replace(f + '.tmp', f)" $(VENV_PYTHON) $(PYTHON_STAMP) $(PYTHON_PACKAGES)
+SAME_PYTHON = { [ "$$(cat $(VENV_MARK) 2>/dev/null)" = "$$base" ] || [ "$$base" -ef $(VENV_PYTHON) ]; }
+setup-python: setup-system
+	@base="$$(command -v $(PYTHON))" || { echo "ERROR: no interpreter $(PYTHON) (set PYTHON=/path/to/python3)"; exit 1; }; \
+	if ! { [ $(PYTHON_STAMP) -nt requirements.txt ] && $(SAME_PYTHON) \
+	        && ( while read -r f; do [ -e "$$f" ] || exit 1; done < $(PYTHON_STAMP) ); }; then \
+	  if ! { [ -f $(VENV_MARK) ] && $(SAME_PYTHON) && [ -x $(VENV_PYTHON) ]; }; then \
+	    if [ -e $(VENV) ] || [ -L $(VENV) ]; then \
+	      [ -f $(VENV_MARK) ] || { echo "ERROR: $(VENV) exists but make setup did not make it: move it aside"; exit 1; }; \
+	      rm -rf $(VENV); \
+	    fi; \
+	    echo "making the virtual environment $(VENV) with $$base"; \
+	    mkdir $(VENV) && printf '%s\n' "$$base" > $(VENV_MARK) && $(PYTHON) -m venv $(VENV) \
+	      || { echo "ERROR: $(PYTHON) -m venv $(VENV) failed (Debian: apt-get install python3-venv)"; exit 1; }; \
+	  fi; \
 	  if ! $(PYTHON_STAMP_WRITE) 2>/dev/null; then \
-	    echo "installing Python packages from requirements.txt"; \
-	    $(PYTHON) -m pip install -q -r requirements.txt && $(PYTHON_STAMP_WRITE) \
-	      || { echo "ERROR: not every one of $(PYTHON_PACKAGES) can be found after installing requirements.txt"; exit 1; }; \
+	    echo "installing Python packages from requirements.txt into $(VENV)"; \
+	    $(VENV_PYTHON) -m pip install -q -r requirements.txt && $(PYTHON_STAMP_WRITE) \
+	      || { echo "ERROR: not every one of $(PYTHON_PACKAGES) can be found in $(VENV) after installing requirements.txt"; exit 1; }; \
 	  fi; \
 	fi
 
 # make case [CASE=cases/NAME.toml] [SET="mesh.nx=80 method.theta=1"]
 case: setup
-	$(PYTHON) -m driver run $(CASE) $(if $(strip $(SET)),--set "$(SET)")
+	$(VENV_PYTHON) -m driver run $(CASE) $(if $(strip $(SET)),--set "$(SET)")
 
 test: setup
-	$(PYTHON) -m pytest -q tests
+	$(VENV_PYTHON) -m pytest -q tests
 
+# clean keeps $(VENV): making it again downloads every package (rm -rf $(VENV) drops it).
 clean:
 	rm -rf runs .pytest_cache $(PLUGINS)
 
@@ -86,28 +116,28 @@ clean:
 # by refilling the generated tables of README.md and docs/*.md: make readme).
 .PHONY: foundation-study
 foundation-study: setup
-	$(PYTHON) -m driver study foundation-newton square-pressure
-	$(PYTHON) -m driver readme
+	$(VENV_PYTHON) -m driver study foundation-newton square-pressure
+	$(VENV_PYTHON) -m driver readme
 
 # Residual estimators on the square: uniform ladder (slides' table), adaptive loop,
 # adapted mesh figure. The reference (adaptive P2, ~1e6 DOFs) is computed once
 # into runs/reference/square_p2.
 .PHONY: aposteriori-study
 aposteriori-study: setup
-	$(PYTHON) -m driver study aposteriori-uniform aposteriori-adaptive square-adapted
-	$(PYTHON) -m driver readme
+	$(VENV_PYTHON) -m driver study aposteriori-uniform aposteriori-adaptive square-adapted
+	$(VENV_PYTHON) -m driver readme
 
 # Fictitious-domain disk on slab: convergence (P1/P2, theta = 1, 0, -1) against a
 # P2 reference (NX = 320, computed once into runs/reference/), gamma0 sweep at
 # NX = 90, stabilization on sliver cuts, cross-check against body-fitted meshes.
 .PHONY: fd2d-study readme
 fd2d-study: setup
-	$(PYTHON) -m driver study fd2d-convergence fd2d-dense-ladder fd2d-gamma0 fd2d-stabilization \
+	$(VENV_PYTHON) -m driver study fd2d-convergence fd2d-dense-ladder fd2d-gamma0 fd2d-stabilization \
 	    fd2d-theta1-stabilization fd2d-crosscheck disk-pressure fd-aposteriori
-	$(PYTHON) -m driver readme
+	$(VENV_PYTHON) -m driver readme
 
 readme:
-	$(PYTHON) -m driver readme
+	$(VENV_PYTHON) -m driver readme
 
 # The contact pressure of the disk on slab (P2, theta = -1, docs/outputs.md): the
 # recovered pressure at NX = 40, 80, 160 against body-fitted P2 solutions at h = 1/320
@@ -116,8 +146,8 @@ readme:
 # plots/pressure_*.png.
 .PHONY: pressure-study
 pressure-study: setup
-	$(PYTHON) -m driver study pressure-recovery pressure-gamma0
-	$(PYTHON) -m driver readme
+	$(VENV_PYTHON) -m driver study pressure-recovery pressure-gamma0
+	$(VENV_PYTHON) -m driver readme
 
 # Speed against error on the disk on slab (timings: ratios and medians belong here,
 # never in tests): results/bench*.csv (Newton grid first: not timed), plots/speed_vs_error.png.
@@ -127,8 +157,8 @@ pressure-study: setup
 # The sliver errors use a P2 NX = 160 reference (computed once into runs/reference/).
 .PHONY: hard-study
 hard-study: setup
-	$(PYTHON) -m driver study hard-cases hard-conditioning
-	$(PYTHON) -m driver readme
+	$(VENV_PYTHON) -m driver study hard-cases hard-conditioning
+	$(VENV_PYTHON) -m driver readme
 
 # bench-overhead: make case's whole process against the FreeFEM run alone (medians),
 # MUMPS's phases and the first active set (results/bench_overhead*.csv, bench_mumps.csv,
@@ -138,8 +168,8 @@ hard-study: setup
 # 3D error tool against the graded reference (results/bench_error_tool*.csv).
 .PHONY: bench
 bench: setup
-	$(PYTHON) -m driver study bench-newton bench bench-overhead bench-ordering bench-solver bench-3d bench-3d-large bench-3d-graded bench-error-tool
-	$(PYTHON) -m driver readme
+	$(VENV_PYTHON) -m driver study bench-newton bench bench-overhead bench-ordering bench-solver bench-3d bench-3d-large bench-3d-graded bench-error-tool
+	$(VENV_PYTHON) -m driver readme
 
 # Fictitious-domain ball on slab (3D): P1 (theta = 1, 0, -1) and P2 ladders against a
 # P2 reference graded toward the contact point (cube(15) refined by tetgen to h = 1/60
@@ -150,8 +180,8 @@ bench: setup
 # (the Hertz scene against Hertz's half-width, force and pressure; README table).
 .PHONY: scenes-study
 scenes-study: setup
-	$(PYTHON) -m driver study scenes
-	$(PYTHON) -m driver readme
+	$(VENV_PYTHON) -m driver study scenes
+	$(VENV_PYTHON) -m driver readme
 
 # The curved cut geometry against the P1 one (docs/curved-geometry.md): cut-cell
 # accuracy, disk-on-slab convergence against a curved P2 NX = 320 reference
@@ -162,13 +192,13 @@ scenes-study: setup
 # and the disk's approach on every NX = 48, 56, ..., 400 (results/curved_centre_scan*.csv).
 .PHONY: curved-study
 curved-study: setup
-	$(PYTHON) -m driver study curved-geometry curved-convergence curved-smooth curved-adaptive curved-centre-scan
-	$(PYTHON) -m driver readme
+	$(VENV_PYTHON) -m driver study curved-geometry curved-convergence curved-smooth curved-adaptive curved-centre-scan
+	$(VENV_PYTHON) -m driver readme
 
 .PHONY: fd3d-study
 fd3d-study: setup
-	$(PYTHON) -m driver study fd3d-convergence ball-on-slab-figure fd3d-adaptive
-	$(PYTHON) -m driver readme
+	$(VENV_PYTHON) -m driver study fd3d-convergence ball-on-slab-figure fd3d-adaptive
+	$(VENV_PYTHON) -m driver readme
 
 # The 3D P2 ladder (theta = -1, nx = 8 to 28) on the curved cut geometry
 # (docs/curved-geometry.md) against fd3d-study's graded reference solved on the curved
@@ -177,8 +207,8 @@ fd3d-study: setup
 # nx = 32 reference): results/curved_*_3d*.csv.
 .PHONY: fd3d-curved-study
 fd3d-curved-study: setup
-	$(PYTHON) -m driver study fd3d-curved-convergence fd3d-curved-smooth
-	$(PYTHON) -m driver readme
+	$(VENV_PYTHON) -m driver study fd3d-curved-convergence fd3d-curved-smooth
+	$(VENV_PYTHON) -m driver readme
 
 # Parameter sweeps on Dask (docs/sweeps.md): one FreeFEM run per point,
 # one row per point in results/sweep_NAME.csv, resumable (runs/sweeps/NAME/rows/).
@@ -188,13 +218,13 @@ WORKERS ?=
 SCHEDULER ?=
 .PHONY: sweep sweep-bench
 sweep: setup
-	$(PYTHON) -m driver sweep $(SWEEP) $(if $(strip $(WORKERS)),--workers $(WORKERS)) \
+	$(VENV_PYTHON) -m driver sweep $(SWEEP) $(if $(strip $(WORKERS)),--workers $(WORKERS)) \
 	    $(if $(strip $(SCHEDULER)),--scheduler $(SCHEDULER))
 
 # The smoke sweep with --workers 1 and --workers 2, 3 times each in fresh folders:
 # medians and their ratio in results/sweep_bench.csv (run on an idle machine).
 sweep-bench: setup
-	$(PYTHON) -m driver sweep-bench $(SWEEP) --repeats 3
+	$(VENV_PYTHON) -m driver sweep-bench $(SWEEP) --repeats 3
 
 # Figures of one run folder, written into it (docs/outputs.md):
 # make plot RUN=runs/NAME-TIME-HASH [PLANE=y=0] (PLANE: 3D cut, default through the contact)
@@ -203,4 +233,4 @@ PLANE ?=
 .PHONY: plot
 plot: setup-python
 	@if [ -z "$(RUN)" ]; then echo "error: make plot needs RUN=<run folder>, e.g. RUN=runs/NAME-TIME-HASH" >&2; exit 2; fi
-	$(PYTHON) -m driver plot "$(RUN)" $(if $(strip $(PLANE)),--plane "$(PLANE)")
+	$(VENV_PYTHON) -m driver plot "$(RUN)" $(if $(strip $(PLANE)),--plane "$(PLANE)")
