@@ -213,6 +213,13 @@ class GeoReader:
             if not self.accept(","):
                 return ids
 
+    def braced(self, read):
+        """{ ... } read by read()."""
+        self.take("{")
+        value = read()
+        self.take("}")
+        return value
+
     def numbers(self):
         values = [self.expression()]
         while self.accept(","):
@@ -246,9 +253,7 @@ class GeoReader:
             self.pos += 1
             ident = self.entity_id()
             self.take("=")
-            self.take("{")
-            values = self.numbers()
-            self.take("}")
+            values = self.braced(self.numbers)
             if len(values) not in (3, 4):
                 self.fail("Point(id) = {x, y, z} or {x, y, z, size}")
             if len(values) == 4 and values[3] <= 0:
@@ -256,22 +261,16 @@ class GeoReader:
             self.records.append(("Point", (ident, values)))
         elif word == "Point" and following == "{":
             self.pos += 1
-            self.take("{")
-            points = self.id_list()
-            self.take("}")
+            points = self.braced(self.id_list)
             self.take("In")
             self.take("Surface")
-            self.take("{")
-            surface = self.integer()
-            self.take("}")
+            surface = self.braced(self.integer)
             self.records.append(("PointInSurface", (points, surface)))
         elif word in CURVES:
             self.pos += 1
             ident = self.entity_id()
             self.take("=")
-            self.take("{")
-            points = self.id_list()
-            self.take("}")
+            points = self.braced(self.id_list)
             count = CURVES[word]
             if (count is not None and len(points) != count) or len(points) < 2:
                 self.fail(f"{word} takes {count or 'at least 2'} point ids")
@@ -280,9 +279,7 @@ class GeoReader:
             self.pos += 2
             ident = self.entity_id()
             self.take("=")
-            self.take("{")
-            curves = self.id_list()
-            self.take("}")
+            curves = self.braced(self.id_list)
             self.records.append(("Curve Loop", (ident, curves)))
         elif word == "Plane" or (word == "Surface" and following == "("):
             self.pos += 1
@@ -290,9 +287,7 @@ class GeoReader:
                 self.take("Surface")
             ident = self.entity_id()
             self.take("=")
-            self.take("{")
-            loops = self.id_list()
-            self.take("}")
+            loops = self.braced(self.id_list)
             self.records.append(("Plane Surface" if word == "Plane" else "Surface", (ident, loops)))
         elif word == "Physical":
             self.pos += 1
@@ -308,17 +303,13 @@ class GeoReader:
                 ident = self.integer()
             self.take(")")
             self.take("=")
-            self.take("{")
-            members = self.id_list()
-            self.take("}")
+            members = self.braced(self.id_list)
             self.records.append(("Physical", ("Curve" if what == "Line" else what, label, ident, members)))
         elif word in ("Characteristic", "MeshSize"):
             self.pos += 1
             if word == "Characteristic":
                 self.take("Length")
-            self.take("{")
-            points = self.id_list()
-            self.take("}")
+            points = self.braced(self.id_list)
             self.take("=")
             size = self.expression()
             if size <= 0:

@@ -13,6 +13,30 @@ import pytest
 
 REPO = Path(__file__).resolve().parent.parent
 
+# A 2D scene: body 1 (any shape, formatted in) floating on the legacy slab {y < -0.25},
+# pinned in x at (0, 0) and (0, -0.1), P1 on an nx x nx background mesh.
+BODY_ON_SLAB = """
+[scene]
+name = "body_on_slab"
+script = "fd_contact_2d"
+[mesh]
+nx = {nx}
+[body1]
+E = 1.0
+nu = 0.3
+body_force = [0.0, -0.1]
+shape = {shape}
+[body2]
+shape = "slab"
+top = -0.25
+E = 1.0
+nu = 0.3
+[rigid]
+fix_x_points = [0.0, 0.0, 0.0, -0.1]
+[method]
+degree = 1
+"""
+
 
 def run_cli(*args, cwd=REPO):
     """python -m driver ARGS from any working folder; returns the CompletedProcess (never raises)."""

@@ -8,7 +8,7 @@ import pytest
 
 from driver.errors import SceneError
 from driver.geometry import read_shape
-from tests.conftest import REPO, run_cli
+from tests.conftest import BODY_ON_SLAB, REPO, run_cli
 
 QUIET = ("output.vtu=false", "output.estimators=false")
 
@@ -19,27 +19,7 @@ def scene_file(tmp_path, text, name="scene.toml"):
     return path
 
 
-BODY_ON_SLAB = """
-[scene]
-name = "body_on_slab"
-script = "fd_contact_2d"
-[mesh]
-nx = {nx}
-[body1]
-E = 1.0
-nu = 0.3
-body_force = [0.0, -0.1]
-shape = {shape}
-[body2]
-shape = "slab"
-top = -0.25
-E = 1.0
-nu = 0.3
-[rigid]
-fix_x_points = [0.0, 0.0, 0.0, -0.1]
-[method]
-degree = 1
-"""
+
 
 # Each shape rests on the slab {y < -0.25} (lowest point at y = -0.25), holds (0, 0)
 # and (0, -0.1), and has a known area.

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import REPO, run_cli
+from tests.conftest import BODY_ON_SLAB, REPO, run_cli
 
 RECTANGLE = """\
 Point(1) = {-0.2, -0.25, 0};
@@ -34,25 +34,7 @@ Curve Loop(1) = {1, 2, 3, 4};
 Plane Surface(1) = {1};
 """
 
-SCENE = """\
-[scene]
-name = "untrusted"
-script = "fd_contact_2d"
-[mesh]
-nx = 20
-[body1]
-E = 1.0
-nu = 0.3
-shape = {shape}
-[body2]
-shape = "slab"
-top = -0.25
-E = 1.0
-nu = 0.3
-[rigid]
-fix_x_points = [0.0, 0.0, 0.0, -0.1]
-[method]
-degree = 1
+SCENE = BODY_ON_SLAB + """\
 [output]
 vtu = false
 estimators = false
@@ -66,7 +48,7 @@ def payload(folder):
 
 def scene(folder, shape=DISK_SHAPE, extra="", name="scene.toml"):
     path = Path(folder) / name
-    path.write_text(SCENE.format(shape=shape) + textwrap.dedent(extra))
+    path.write_text(SCENE.format(nx=20, shape=shape) + textwrap.dedent(extra))
     return path
 
 
