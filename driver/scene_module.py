@@ -394,3 +394,11 @@ def support_lines(results):
     by_support = results.get("reactions", {}).get("by_support", {})
     return [f"support {name}: reaction ({', '.join(f'{v:.4g}' for v in force)})"
             for name, force in by_support.items()]
+
+def gate_lines(results):
+    """Summary lines of a run kept past its gates (results.json plausibility and balance,
+    freefem/lib/core/gates.idp): what the scene's allow flag let through."""
+    kept = [("plausibility", "implausible", "IMPLAUSIBLE (kept by solver.allow_implausible)"),
+            ("balance", "unbalanced", "UNBALANCED (kept by solver.allow_unbalanced)")]
+    return [f"{label}: {results[key]['message']}" for key, flag, label in kept
+            if results.get(key, {}).get(flag)]
