@@ -160,6 +160,14 @@ hard-study: setup
 	$(VENV_PYTHON) -m driver study hard-cases hard-conditioning
 	$(VENV_PYTHON) -m driver readme
 
+# The gates of the two-body solvers (freefem/lib/core/gates.idp) on every shipped scene
+# of cases/, cases/hard/, cases/verification/: penetration, drift and load shares
+# against the tolerances (results/gates.csv, table in docs/reliability.md).
+.PHONY: gates-study
+gates-study: setup
+	$(PYTHON) -m driver study gates
+	$(PYTHON) -m driver readme
+
 # bench-overhead: make case's whole process against the FreeFEM run alone (medians),
 # MUMPS's phases and the first active set (results/bench_overhead*.csv, bench_mumps.csv,
 # bench_first_active_set.csv). bench-solver and bench-3d time the previous version

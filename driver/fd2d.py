@@ -20,7 +20,7 @@ gamma_scaling shear or none.
 import numpy as np
 
 from driver.errors import SceneError
-from driver.scene_module import check_two_bodies, support_lines
+from driver.scene_module import check_two_bodies, gate_lines, support_lines
 from driver.scene_module import scene_module  # noqa: F401  (the runner calls module.scene_module)
 from driver.scene import SCENE_HEADER
 from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, at_least, between, open_interval, positive,
@@ -198,9 +198,7 @@ def summary_lines(results):
         lines.append(f"adaptation: {len(steps['dofs'])} solves, DOFs {int(steps['dofs'][0])} -> "
                      f"{int(steps['dofs'][-1])}, eta {steps['eta'][0]:.4g} -> {steps['eta'][-1]:.4g}, "
                      f"body 1 area {steps['area_body1'][0]:.6f} -> {steps['area_body1'][-1]:.6f}")
-    balance = results.get("balance")
-    if balance and balance.get("unbalanced"):
-        lines.append(f"UNBALANCED (kept by solver.allow_unbalanced): {balance['message']}")
+    lines += gate_lines(results)
     return lines + [
         f"bodies: {results['dofs_body1']} + {results['dofs_body2']} DOFs on the cut spaces, "
         f"areas {results['areas']['body1']:.6g} and {results['areas']['body2']:.6g}",

@@ -85,8 +85,17 @@ class Shape:
         return None
 
     def bounds(self):
-        """A box (lo, hi) holding the shape, or None when it is unbounded."""
-        return None
+        """A box (lo, hi) holding the placed shape, or None when it is unbounded (half-spaces,
+        expressions, booleans)."""
+        if not hasattr(self, "bounds_local"):
+            return None
+        lo, hi = self.bounds_local()
+        corners = np.array(np.meshgrid(*[[l, h] for l, h in zip(lo, hi)], indexing="ij")).reshape(self.dim, -1)
+        if self.rotation is not None:
+            corners = np.array(self.rotation) @ corners
+        if self.translate:
+            corners = corners + np.array(self.translate)[:, None]
+        return corners.min(axis=1), corners.max(axis=1)
 
 
 # ---------------------------------------------------------------- primitives
@@ -599,15 +608,11 @@ def placed_measure(shape, box):
 
 def bounded_inside(shape, box):
     """The shape lies strictly inside the box (so the box does not clip it)."""
-    if isinstance(shape, Boolean) or isinstance(shape, (HalfSpace, Expression)):
+    bounds = shape.bounds()
+    if bounds is None:
         return False
-    lo, hi = shape.bounds_local()
-    corners = np.array(np.meshgrid(*[[l, h] for l, h in zip(lo, hi)], indexing="ij")).reshape(shape.dim, -1)
-    if shape.rotation is not None:
-        corners = np.array(shape.rotation) @ corners
-    if shape.translate:
-        corners = corners + np.array(shape.translate)[:, None]
-    return all(b[0] < corners[i].min() and corners[i].max() < b[1] for i, b in enumerate(box))
+    lo, hi = bounds
+    return all(b[0] < lo[i] and hi[i] < b[1] for i, b in enumerate(box))
 
 
 def holes_inside(shape, box):

@@ -255,6 +255,20 @@ def hard_gamma_scaling():
     return gamma_scaling_table(pd.read_csv(RESULTS / "hard_gamma_scaling.csv"))
 
 
+def gates():
+    t = pd.read_csv(RESULTS / "gates.csv")
+    t = t[t.status == "converged"].copy()
+    t["scene"] = t.case.str.replace("cases/", "", regex=False).str.replace(".toml", "", regex=False)
+    t["floats"] = t.floating_body1.astype(int).astype(str) + t.floating_body2.astype(int).astype(str)
+    t["floats"] = t.floats.map({"10": "body 1", "01": "body 2", "11": "both", "00": ""})
+    t["drift / size"] = [max(d1 if f1 else 0.0, d2 if f2 else 0.0) if f1 or f2 else float("nan") for d1, d2, f1, f2
+                         in zip(t.drift_ratio_body1, t.drift_ratio_body2, t.floating_body1, t.floating_body2)]
+    t = t.rename(columns={"penetration_ratio": "penetration / size", "pins_share": "pins", "mass_share": "mass term",
+                          "balance_error": "balance error", "roundoff_share": "round-off"})
+    return markdown_table(t[["scene", "floats", "penetration / size", "drift / size", "pins", "mass term",
+                             "balance error", "round-off"]], digits=2)
+
+
 def hard_conditioning():
     from driver.studies.hard_cases import conditioning_summary
 
@@ -452,6 +466,7 @@ TABLES = {
     "hard_cases": hard_cases,
     "hard_gamma_scaling": hard_gamma_scaling,
     "hard_conditioning": hard_conditioning,
+    "gates": gates,
     "bench": bench,
     "bench_scaling": bench_scaling,
     "bench_targets": bench_targets,

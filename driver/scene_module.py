@@ -133,7 +133,7 @@ class Bodies:
                                for n, h in enumerate(body.get("hold", []))])
             self.loads.append([self.boundary_part(h, f"{source}: key body{i}.load.{n}", "traction", base_dir)
                                for n, h in enumerate(body.get("load", []))])
-        self.check_placement(source)
+        self.check_placement(source, scene["mesh"]["nx"])
         for i in (1, 2):
             for kind, parts in (("hold", self.holds[i - 1]), ("load", self.loads[i - 1])):
                 for n, part in enumerate(parts):
@@ -206,25 +206,52 @@ class Bodies:
             raise SceneError(f"{where}: body {i} does not reach box face {name} (a face hold or load acts on "
                              f"the part of the face inside the body; use a region for a cut boundary)")
 
-    def check_placement(self, source):
+    def check_placement(self, source, nx):
+        """Each body inside the box and not filling it, the two apart, on a grid of samples of
+        the box; a bounded body between the samples is sampled on its own box instead."""
         n = 401 if self.dim == 2 else 61
-        grid = sample_grid(self.box, self.dim, n)
-        phis = [s.phi(*grid) for s in self.shapes]
+        grids = [sample_grid(self.box, self.dim, n)]
         size = max(hi - lo for lo, hi in self.box)
-        for i, phi in enumerate(phis, start=1):
+        for i, phi in enumerate([s.phi(*grids[0]) for s in self.shapes], start=1):
             if not np.all(np.isfinite(phi)):
                 raise SceneError(f"{source}: key body{i}.shape: the level set is not finite everywhere in the box")
             if np.count_nonzero(phi < 0) < 4:
-                raise SceneError(f"{source}: key body{i}.shape: the body misses the box "
-                                 f"(no part of it inside {self.box})")
+                grids.append(self.small_body_grid(i, source, n, nx))
             if np.count_nonzero(phi >= 0) == 0:
                 raise SceneError(f"{source}: key body{i}.shape: the body fills the whole box")
-        both = np.maximum(phis[0], phis[1])
-        k = int(np.argmin(both))
-        if both.flat[k] < -1e-9 * size:
-            where = ", ".join(f"{g.flat[k]:.4g}" for g in grid)
-            raise SceneError(f"{source}: key body1.shape: the bodies overlap at the start "
-                             f"(both contain ({where}), depth {-both.flat[k]:.3g})")
+        for grid in grids:
+            both = np.maximum(self.shapes[0].phi(*grid), self.shapes[1].phi(*grid))
+            k = int(np.argmin(both))
+            if both.flat[k] < -1e-9 * size:
+                where = ", ".join(f"{g.flat[k]:.4g}" for g in grid)
+                raise SceneError(f"{source}: key body1.shape: the bodies overlap at the start "
+                                 f"(both contain ({where}), depth {-both.flat[k]:.3g})")
+
+    def small_body_grid(self, i, source, n, nx):
+        """Body i holds fewer than 4 samples of the box's grid: it misses the box, or it is a
+        bounded shape smaller than the grid's step. Then it must span at least the mesh size h
+        (box width / nx; a smaller body holds no mesh vertex and the mesh cannot represent it)
+        and its samples come from a grid on the part of its bounding box inside the box."""
+        where = f"{source}: key body{i}.shape"
+        step = max((hi - lo) / (n - 1) for lo, hi in self.box)
+        bounds = self.shapes[i - 1].bounds()
+        if bounds is None:
+            raise SceneError(f"{where}: the body misses the box (no sample of a grid of step {step:.3g} inside "
+                             f"{self.box})")
+        lo = [max(l, b[0]) for l, b in zip(bounds[0], self.box)]
+        hi = [min(h, b[1]) for h, b in zip(bounds[1], self.box)]
+        if any(h <= l for l, h in zip(lo, hi)):
+            raise SceneError(f"{where}: the body misses the box (no part of it inside {self.box})")
+        width = self.box[0][1] - self.box[0][0]
+        span, mesh_h = min(h - l for l, h in zip(lo, hi)), width / nx
+        if span < mesh_h:
+            raise SceneError(f"{where}: the body spans {span:.3g} inside the box, less than the mesh size "
+                             f"h = {mesh_h:.3g} (box width / mesh.nx = {nx}): the mesh cannot represent it; "
+                             f"mesh.nx must exceed {math.ceil(width / span)}")
+        grid = sample_grid(list(zip(lo, hi)), self.dim, 41 if self.dim == 2 else 21)
+        if np.count_nonzero(self.shapes[i - 1].phi(*grid) < 0) < 4:
+            raise SceneError(f"{where}: the body misses the box (no sample inside {self.box})")
+        return grid
 
     # ------------------------------------------------------------ module text
 
@@ -388,3 +415,12 @@ def support_lines(results):
     by_support = results.get("reactions", {}).get("by_support", {})
     return [f"support {name}: reaction ({', '.join(f'{v:.4g}' for v in force)})"
             for name, force in by_support.items()]
+
+
+def gate_lines(results):
+    """Summary lines of a run kept past its gates (results.json plausibility and balance,
+    freefem/lib/core/gates.idp): what the scene's allow flag let through."""
+    kept = [("plausibility", "implausible", "IMPLAUSIBLE (kept by solver.allow_implausible)"),
+            ("balance", "unbalanced", "UNBALANCED (kept by solver.allow_unbalanced)")]
+    return [f"{label}: {results[key]['message']}" for key, flag, label in kept
+            if results.get(key, {}).get(flag)]

@@ -322,8 +322,12 @@ def two_body_solver_schema(floating_body, contact_points):
                               "nested dissection, whose ordering costs more but pays on large 3D systems)"),
         "allow_unbalanced": Field("bool", flag="allow_unbalanced", default=False,
                                   doc=f"keep a run whose pins or mass term carry more than 1e-6 of the "
-                                      f"{floating_body}'s load (flagged in results.json 'balance'); refused "
-                                      f"(exit 3) otherwise"),
+                                      f"{floating_body}'s load beyond the solve's round-off (flagged in "
+                                      f"results.json 'balance'); refused (exit 3) otherwise"),
+        "allow_implausible": Field("bool", flag="allow_implausible", default=False,
+                                   doc="keep a run whose largest penetration exceeds 0.05 of the smaller body's "
+                                       "size or whose floating body drifts by more than 0.5 of its size (flagged "
+                                       "in results.json 'plausibility'); refused (exit 3) otherwise"),
     }
 
 

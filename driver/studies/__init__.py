@@ -29,6 +29,7 @@ REGISTRY = {
     "fd3d-adaptive": ("fd3d_estimators", "adaptive_study"),
     "hard-cases": ("hard_cases", "hard_cases"),
     "hard-conditioning": ("hard_cases", "hard_conditioning"),
+    "gates": ("gates", "gates"),
     "scenes": ("scenes", "scenes"),
     "curved-geometry": ("curved", "geometry_check"),
     "curved-convergence": ("curved", "convergence"),
