@@ -75,10 +75,38 @@ def tool_errors(tool, ref, run, *extra, out=None):
     return json.loads(Path(out).read_text())
 
 
+# Newton's stopping rule (core/newton.idp): the last step's active set is the one of
+# the step before and its residual is below the tolerance, or (the round-off floor)
+# the set stayed for two steps and the residual is below this factor times it.
+ROUNDOFF_FLOOR_FACTOR = 1e3
+
+
+def check_newton_stop(results, scene):
+    """A converged run's last Newton step kept its active set and met the tolerance
+    the scene asked for (scene: the run's scene.json, None for a direct run)."""
+    newton = results.get("newton")
+    if results.get("status") != "converged" or not newton or "changed_measure" not in newton:
+        return
+    tol = scene["solver"]["newton_tol"] if scene and "solver" in scene else newton["tolerance"]
+    contact = results.get("contact", {})
+    boundary = max(contact.get("boundary_length", contact.get("boundary_area", 1.0)), 1.0)
+    changed, residual = newton["changed_measure"], newton["residual"]
+    assert changed[-1] <= 1e-12 * boundary, f"Newton stopped on a changed active set: {changed}"
+    if newton.get("converged_by") == "roundoff_floor":
+        assert len(changed) > 1 and changed[-2] <= 1e-12 * boundary, f"round-off floor on a new active set: {changed}"
+        assert residual[-1] < ROUNDOFF_FLOOR_FACTOR * tol, f"residual {residual[-1]} above the floor of {tol}"
+    else:
+        assert residual[-1] < tol, f"Newton stopped at residual {residual[-1]}, tolerance {tol}"
+
+
 class Run:
+    """A converged run's folder: results.json read, and its Newton stop checked."""
+
     def __init__(self, folder):
         self.folder = Path(folder)
         self.results = json.loads((self.folder / "results.json").read_text())
+        scene = self.folder / "scene.json"
+        check_newton_stop(self.results, json.loads(scene.read_text()) if scene.is_file() else None)
 
     def points_and_displacement(self):
         vtu = meshio.read(self.folder / "fields.vtu")
@@ -89,19 +117,34 @@ class Run:
         return pd.read_csv(self.folder / "contact_pressure.csv")
 
 
+def driver_run(case, out, *overrides):
+    """python -m driver run CASE --out OUT --set ... -> Run, failing the test with the driver's message."""
+    args = ["run", str(REPO / case), "--out", str(out)]
+    for item in overrides:
+        args += ["--set", item]
+    proc = run_cli(*args)
+    assert proc.returncode == 0, f"driver failed ({proc.returncode}):\n{proc.stderr}\n{proc.stdout}"
+    return Run(out)
+
+
 @pytest.fixture
 def run_scene(tmp_path):
     """run_scene(case, 'key=value', ...) -> Run, failing the test with the driver's message."""
     counter = iter(range(1000))
+    return lambda case, *overrides: driver_run(case, tmp_path / f"run{next(counter)}", *overrides)
+
+
+@pytest.fixture(scope="module")
+def module_scene(tmp_path_factory):
+    """module_scene(case, 'key=value', ...) -> Run as run_scene, each distinct run made
+    once per test module (tests that read the same run share it)."""
+    made = {}
 
     def _run(case, *overrides):
-        out = tmp_path / f"run{next(counter)}"
-        args = ["run", str(REPO / case), "--out", str(out)]
-        for item in overrides:
-            args += ["--set", item]
-        proc = run_cli(*args)
-        assert proc.returncode == 0, f"driver failed ({proc.returncode}):\n{proc.stderr}\n{proc.stdout}"
-        return Run(out)
+        key = (str(case), overrides)
+        if key not in made:
+            made[key] = driver_run(case, tmp_path_factory.mktemp("run"), *overrides)
+        return made[key]
 
     return _run
 
