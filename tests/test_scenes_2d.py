@@ -268,22 +268,30 @@ def test_ring_reports_its_probes_and_exact_area(run_scene):
 
 
 def test_hertz_cylinders_on_a_coarse_adaptive_run(run_scene):
-    """cases/hertz_cylinders.toml with three adaptation steps (the shipped scene uses four):
-    half-width within 5 % of Hertz's a, total contact force within 1e-6 of P, pressure
-    within 10 % (relative L2 over the zone; shipped scene: 3.2 %)."""
+    """cases/hertz_cylinders.toml with three adaptation steps (the shipped scene uses four)
+    against Hertz: half-width within 1 % of a (measured -0.35 %), total contact force
+    within 1e-6 of P; the recovered pressure within 1.5 % of Hertz's (relative L2 over
+    the zone, measured 0.83 %), its peak within 0.5 % of p0 (measured +0.17 %) and >= 0
+    everywhere; the raw pressure within 10 % (measured 4.3 %; its peak is 95 % above p0)."""
     run = run_scene("cases/hertz_cylinders.toml", "adapt.steps=3", "output.vtu=false")
     p_total, radius = 0.001, 1 / (1 / 0.25 + 1 / 0.75)
     e_star = 1 / (2 * (1 - 0.3 ** 2))
     a = math.sqrt(4 * p_total * radius / (math.pi * e_star))
     p0 = 2 * p_total / (math.pi * a)
     x0, x1 = run.results["contact"]["active_extent"]["x"]
-    assert abs((x1 - x0) / 2 - a) / a < 0.05
+    assert abs((x1 - x0) / 2 - a) / a < 0.01
     assert abs(run.results["contact"]["force_on_body1"][1] - p_total) < 1e-6
     s = run.contact_samples()
+    assert (s.pressure_recovered >= 0).all()
     zone = s[(s.x.abs() < a) & (s.y < 0.05)]
     hertz = p0 * np.sqrt(1 - zone.x ** 2 / a ** 2)
-    rel = math.sqrt(np.sum(zone.weight * (zone.pressure - hertz) ** 2) / np.sum(zone.weight * hertz ** 2))
-    assert rel < 0.10
+
+    def error(pressure):
+        return math.sqrt(np.sum(zone.weight * (pressure - hertz) ** 2) / np.sum(zone.weight * hertz ** 2))
+
+    assert error(zone.pressure_recovered) < 0.015
+    assert abs(run.results["contact"]["max_pressure_recovered"] / p0 - 1) < 0.005
+    assert error(zone.pressure) < 0.10
 
 
 def test_gmsh_outline_body(run_scene):
