@@ -1,5 +1,8 @@
 """Two-body fictitious-domain contact (disk on slab): physics checks on coarse meshes."""
 
+import math
+
+import meshio
 import numpy as np
 import pandas as pd
 import pytest
@@ -42,7 +45,7 @@ def test_solution_does_not_depend_on_theta(module_scene):
     wrong sign of theta in one of the contact terms moves theta = 1's by 7e-3."""
     reference = centre_y(disk24(module_scene, 2, -1))
     for theta, bound in ((1, 2e-4), (0, 5e-4)):
-        assert abs(centre_y(disk24(module_scene, 2, theta)) / reference - 1) < bound, theta
+        assert abs(centre_y(disk24(module_scene, 2, theta)) / reference - 1) < bound, f"theta = {theta}"
 
 
 def test_centre_against_the_nx320_reference(run_scene):
@@ -67,6 +70,15 @@ def test_eta4_is_the_contact_residual_of_the_pressure_table(module_scene, degree
     s = run.contact_samples()
     expected = np.sqrt(run.results["h_max"] * np.sum(s.weight * (s.pressure + s.sigma_n) ** 2))
     assert run.results["estimator"]["eta4"] == pytest.approx(expected, rel=1e-11)
+
+
+@pytest.mark.parametrize("theta", [1, 0, -1])
+def test_eta1_of_p1_is_the_load_residual(module_scene, theta):
+    """P1: div sigma = 0 on every element, so eta1^2 = sum h_K^2 |div sigma + f|^2 |K cap
+    Omega_i| = h^2 |f|^2 |disk| (f = (0, -0.1) on the disk, 0 on the slab; one h_K on
+    the uniform mesh): 2e-15 relative measured."""
+    r = disk24(module_scene, 1, theta).results
+    assert r["estimator"]["eta1"] == pytest.approx(r["h_max"] * 0.1 * math.sqrt(r["areas"]["body1"]), rel=1e-13)
 
 
 def test_a_loose_tolerance_stops_on_the_same_solution(module_scene):
@@ -134,6 +146,13 @@ def test_stabilizations_agree_with_plain_method(run_scene, module_scene, stabili
     assert cut["case_a"] + cut["case_b"] + cut["case_c"] > 0
     if stabilization == "neighbour":
         assert cut["case_b"] > 0 and cut["case_c"] == 0
+        # the rule's cases against the cut ratios the run wrote (body1.vtu: P2, each
+        # element split in four): case a is every cut element with ratio >= rho
+        vtu = meshio.read(stab.folder / "body1.vtu")
+        ratio = np.ravel(next(data for block, data in zip(vtu.cells, vtu.cell_data["cut_ratio"])
+                              if block.type == "triangle"))
+        assert cut["case_a"] == ((ratio >= cut["rho"]) & (ratio < 1)).sum() / 4
+        assert cut["case_b"] + cut["case_c"] == (ratio < cut["rho"]).sum() / 4
     else:
         # the ghost penalty controls the badly cut elements' rows: the spread of the
         # Newton matrix's diagonal (a lower bound of its condition number) drops from

@@ -1,23 +1,27 @@
 """Two-body patch test: a block pressed uniformly onto a slab (2D and 3D).
 
 Body 1 fills the box above the slab {y < -0.25} (z in 3D) and carries a traction
-(0, -q) on the box top; it is held only in x on the face x = xmin (and in y on
-y = ymin in 3D), so that it expands sideways freely. The slab (nu = 0) is clamped on
-the box bottom. The exact solution is affine: sigma_yy = -q in both bodies, every
-other stress zero; the slab u = (0, -q/E2 (y + 0.5)), the block
-  2D (plane strain): u_x = q nu (1 + nu)/E1 (x + 0.5), u_y = u2(-0.25) - q (1 - nu^2)/E1 (y + 0.25),
-  3D:                u_x = q nu/E1 (x + 0.5), u_y = q nu/E1 (y + 0.5), u_z = u2(-0.25) - q/E1 (z + 0.25).
+(0, -q) on the box top. Both bodies slide freely on the box faces that hold them:
+body 1 is held in x on the face x = xmin (and in y on y = ymin in 3D), the slab
+in the same way and in y (z) on the box bottom, so that neither is held against
+its sideways expansion. The exact solution is affine: sigma_yy = -q in both
+bodies, every other stress zero; with E, nu of each body,
+  2D (plane strain): u_x = q nu (1 + nu)/E (x + 0.5), u_y = u_y(bottom) - q (1 - nu^2)/E (y - bottom),
+  3D:                u_x = q nu/E (x + 0.5), u_y = q nu/E (y + 0.5), u_z = u_z(bottom) - q/E (z - bottom),
+the slab's bottom at -0.5 (u = 0 there), the block's at -0.25 on the slab's top.
 A consistent Nitsche method reproduces it exactly, for every theta: the contact
 points' pressure (1/gamma)[P u - g]_+ is q, their normal jump 0, sigma_n = -q, and
 every residual estimator vanishes. The interface y = -0.25 cuts the elements (nx
-not a multiple of 4). lambda != mu in the block (nu = 0.4): a material with its
-Lame coefficients swapped, or nu converted wrongly, gives another field.
+not a multiple of 4), lambda != mu in both bodies: Lame coefficients swapped, or
+nu converted wrongly, give another field. Held in one component on each face, the
+bodies count as floating: mass_eps = 1e-12 (what it carries, 1e-13 of the load,
+is below the round-off) makes the solver accept them; every rigid motion is held.
 """
 
 import numpy as np
 import pytest
 
-Q, E1, NU1, E2 = 0.01, 1.0, 0.4, 2.0
+Q, E1, NU1, E2, NU2 = 0.01, 1.0, 0.4, 2.0, 0.3
 
 BLOCK_2D = f"""
 [scene]
@@ -36,10 +40,10 @@ load = [{{ face = "ymax", traction = [0.0, {-Q}] }}]
 shape = "slab"
 top = -0.25
 E = {E2}
-nu = 0.0
-hold = [{{ face = "ymin" }}]
+nu = {NU2}
+hold = [{{ face = "ymin", components = "y" }}, {{ face = "xmin", components = "x" }}]
 [rigid]
-mass_eps = 0.0
+mass_eps = 1.0e-12
 fix_x_points = []
 """
 
@@ -60,10 +64,10 @@ load = [{{ face = "zmax", traction = [0.0, 0.0, {-Q}] }}]
 shape = "slab"
 top = -0.25
 E = {E2}
-nu = 0.0
-hold = [{{ face = "zmin" }}]
+nu = {NU2}
+hold = [{{ face = "zmin", components = "z" }}, {{ face = "xmin", components = "x" }}, {{ face = "ymin", components = "y" }}]
 [rigid]
-mass_eps = 0.0
+mass_eps = 1.0e-12
 fix_xy_points = []
 """
 
@@ -81,14 +85,16 @@ def scene_text(dim):
 def exact(point, body):
     """The affine displacement at a point of body 1 or 2 (see the module's text)."""
     *plane, up = point
-    slab_top = -Q / E2 * 0.25
-    if body == 2:
-        return np.array([0.0] * len(plane) + [-Q / E2 * (up + 0.5)])
-    if len(plane) == 1:
-        sideways, down = Q * NU1 * (1 + NU1) / E1, Q * (1 - NU1 ** 2) / E1
+    young, poisson = (E1, NU1) if body == 1 else (E2, NU2)
+    if len(plane) == 1:   # plane strain
+        sideways, down = Q * poisson * (1 + poisson) / young, Q * (1 - poisson ** 2) / young
     else:
-        sideways, down = Q * NU1 / E1, Q / E1
-    return np.array([sideways * (c + 0.5) for c in plane] + [slab_top - down * (up + 0.25)])
+        sideways, down = Q * poisson / young, Q / young
+    if body == 2:
+        base, height = 0.0, up + 0.5
+    else:
+        base, height = exact([0.0] * len(plane) + [-0.25], 2)[-1], up + 0.25
+    return np.array([sideways * (c + 0.5) for c in plane] + [base - down * height])
 
 
 @pytest.fixture(scope="module")
@@ -101,9 +107,9 @@ def block(tmp_path_factory, module_scene):
     return lambda dim, degree, theta: module_scene(paths[dim], f"method.degree={degree}", f"method.theta={theta}")
 
 
-# Measured on these runs (largest over them): probes 3.1e-10 of the largest
-# displacement, penetration 2.0e-11 of it, raw pressure 6.1e-9 of q (1/gamma times
-# the round-off of the normal jump), recovered pressure 1.3e-9, sigma_n 4.1e-10,
+# Measured on these runs (largest over them): probes 3.2e-10 of the largest
+# displacement, penetration 1.9e-11 of it, raw pressure 5.4e-9 of q (1/gamma times
+# the round-off of the normal jump), recovered pressure 1.1e-9, sigma_n 8.2e-10,
 # eta 1.1e-8 q. A contact law off by 1 %, or a theta term of the wrong sign, leaves a
 # penetration of 1e-5 of it and a pressure off by 8 % and more; the 3D estimator
 # with inward normals on a loaded box face gave eta = 0.76 q.
@@ -115,7 +121,7 @@ def test_block_on_slab_reproduces_the_affine_solution(block, dim, degree, theta)
     run = block(dim, degree, theta)
     r = run.results
     # the driver's (E, nu) -> Lame and FreeFEM's Lame -> (E, nu) give the scene's values back
-    for body, (young, poisson) in (("body1", (E1, NU1)), ("body2", (E2, 0.0))):
+    for body, (young, poisson) in (("body1", (E1, NU1)), ("body2", (E2, NU2))):
         assert r["materials"][body]["E"] == pytest.approx(young, rel=1e-12)
         assert r["materials"][body]["nu"] == pytest.approx(poisson, abs=1e-12)
     scale = np.abs(exact(*POINTS[dim]["top"])).max()
@@ -127,5 +133,5 @@ def test_block_on_slab_reproduces_the_affine_solution(block, dim, degree, theta)
     assert (s.normal_jump - s.gap).abs().max() < 5e-11 * scale
     assert (s.pressure / Q - 1).abs().max() < 2e-8
     assert (s.pressure_recovered / Q - 1).abs().max() < 5e-9
-    assert (s.sigma_n / Q + 1).abs().max() < 1.5e-9
+    assert (s.sigma_n / Q + 1).abs().max() < 2.5e-9
     assert r["estimator"]["eta"] < 5e-8 * Q
