@@ -112,6 +112,16 @@ test: setup
 clean:
 	rm -rf runs .pytest_cache $(PLUGINS)
 
+# The mutation check (docs/mutation.md; not part of make test): each mutant of
+# tests/mutation/mutants.toml applied alone to a scratch copy of the checkout, the
+# test files it names run against it; results/mutation.csv and docs/mutation.md.
+# make mutation [MUTANTS=id1,id2] (some of them; the table keeps the other rows)
+MUTANTS ?=
+.PHONY: mutation
+mutation: setup
+	$(VENV_PYTHON) tests/mutation/run.py $(if $(strip $(MUTANTS)),--only "$(MUTANTS)")
+	$(VENV_PYTHON) -m driver readme
+
 # Tables and figures of the study pages in docs/ (one target per study; each ends
 # by refilling the generated tables of README.md and docs/*.md: make readme).
 .PHONY: foundation-study

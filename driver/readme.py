@@ -459,9 +459,46 @@ def curved_smooth(csv="curved_smooth.csv", extra=()):
     return markdown_table(t[["geometry", "nx", "dofs", "l2_body2", "h1_body2", "dropped", "newton_iterations",
                              "wall_s", *extra]], digits=3)
 
+
+def mutation_frame():
+    return pd.read_csv(RESULTS / "mutation.csv", keep_default_na=False)
+
+
+def mutation():
+    """make mutation's table: each mutant, whether a test caught it and which."""
+    t = mutation_frame()
+    rows = [{"mutant": r.id, "family": r.family, "file": f"`{r.file}`", "caught": r.caught,
+             "by a results assertion": r.by_results_assertion,
+             "test that failed": f"`{r.results_test or r.first_failing_test}`" if r.first_failing_test else "",
+             "s": r.seconds} for r in t.itertuples()]
+    return markdown_table(pd.DataFrame(rows))
+
+
+def mutation_totals():
+    """Per family: mutants caught by an assertion about the results; caught only by a
+    run meant to converge failing; only otherwise (a run meant to fail, an exception);
+    missed; equivalent; not run (not applied, build or pytest error)."""
+    t = mutation_frame()
+    results = t.by_results_assertion == "yes"
+    caught_only = (t.caught == "yes") & ~results
+    kinds = {"caught by a results assertion": results, "only by a run failing": caught_only & (t.caught_by == "run failed"),
+             "only otherwise": caught_only & (t.caught_by != "run failed"), "missed": t.caught == "no",
+             "equivalent": t.caught == "no (equivalent)", "not run": ~t.caught.isin(["yes", "no", "no (equivalent)"])}
+    rows = []
+    for family, part in list(t.groupby("family", sort=False)) + [("all", t)]:
+        rows.append({"family": family, "mutants": len(part), **{k: int(v[part.index].sum()) for k, v in kinds.items()}})
+    counted = len(t) - int(kinds["equivalent"].sum())
+    return (markdown_table(pd.DataFrame(rows))
+            + f"\n\nCaught by an assertion about the results: {int(results.sum())} of {counted} non-equivalent "
+              f"mutants ({100 * results.sum() / max(counted, 1):.0f} %); {t.seconds.astype(float).sum() / 60:.0f} min "
+              f"of test runs.")
+
+
 TABLES = {
     **{name: functools.partial(stamped_bench_table, name) for name in STAMPED_BENCH_TABLES},
     "hertz": hertz,
+    "mutation": mutation,
+    "mutation_totals": mutation_totals,
     "scenes": scenes_table,
     "hard_cases": hard_cases,
     "hard_gamma_scaling": hard_gamma_scaling,

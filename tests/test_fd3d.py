@@ -54,7 +54,7 @@ def test_solution_does_not_depend_on_theta(module_scene):
     of the contact operator with the wrong sign moves them by 2.3e-2 and 1.2e-2."""
     reference = centre_z(ball8(module_scene, -1))
     for theta, bound in ((1, 1.5e-3), (0, 1.2e-3)):
-        assert abs(centre_z(ball8(module_scene, theta)) / reference - 1) < bound, theta
+        assert abs(centre_z(ball8(module_scene, theta)) / reference - 1) < bound, f"theta = {theta}"
 
 
 @pytest.mark.parametrize("theta", [1, 0, -1])
