@@ -465,13 +465,15 @@ def mutation_frame():
 
 
 def mutation():
-    """make mutation's table: each mutant, whether a test caught it and which."""
+    """make mutation's table: each mutant, what caught it and which test; then the
+    equivalent mutants with the measurement that shows it."""
     t = mutation_frame()
     rows = [{"mutant": r.id, "family": r.family, "file": f"`{r.file}`", "caught": r.caught,
-             "by a results assertion": r.by_results_assertion,
-             "test that failed": f"`{r.results_test or r.first_failing_test}`" if r.first_failing_test else "",
+             "first failure": r.caught_by, "by a results assertion": r.by_results_assertion,
+             "test": f"`{r.results_test or r.first_failing_test}`" if r.first_failing_test else "",
              "s": r.seconds} for r in t.itertuples()]
-    return markdown_table(pd.DataFrame(rows))
+    notes = [f"- `{r.id}` ({r.caught}): {r.equivalent}" for r in t.itertuples() if r.equivalent]
+    return markdown_table(pd.DataFrame(rows)) + ("\n\nEquivalent mutants:\n\n" + "\n".join(notes) if notes else "")
 
 
 def mutation_totals():

@@ -68,6 +68,16 @@ def test_eta4_is_the_contact_residual_of_the_pressure_table(module_scene, theta)
     assert run.results["estimator"]["eta4"] == pytest.approx(expected, rel=1e-11)
 
 
+def test_gap_is_the_height_above_the_slab(module_scene):
+    """The slab {z < -0.25} is flat: a contact point's gap is its height above the slab
+    and its projection the point below it (contact_pressure.csv: 5e-13 measured, the
+    CSV's 12 digits on gaps up to 0.5)."""
+    s = ball8(module_scene, -1).contact_samples()
+    assert np.abs(s.gap - (s.z + 0.25)).max() < 2e-12
+    assert np.abs(s.proj_z + 0.25).max() < 1e-12
+    assert np.abs(s.proj_x - s.x).max() < 1e-12 and np.abs(s.proj_y - s.y).max() < 1e-12
+
+
 def test_slab_top_cutting_the_elements_and_neighbour_stabilization(run_scene):
     # nx = 10: z = -0.25 cuts the cells (nx = 8: it lies on a grid plane)
     plain = run_scene(BALL, "mesh.nx=10")

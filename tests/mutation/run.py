@@ -11,7 +11,7 @@ recorded and what it failed on classified (failure_kind):
   results assertion  an assertion about what the code computed (numbers, outputs,
                      Newton's history);
   run failed         a run meant to converge exited non-zero;
-  negative test      a run meant to fail did otherwise;
+  negative test      a run meant to fail did otherwise (its exit code or message);
   exception          not an assertion.
 
 After anything but a results assertion the files run again without that test (up to
@@ -46,7 +46,7 @@ PLUGINS = "freefem/plugins/"
 SIDE_EFFECT_RETRIES = 3
 TIMEOUT_S = 3600
 COLUMNS = ["id", "file", "family", "description", "caught", "first_failing_test", "first_failure", "caught_by",
-           "by_results_assertion", "results_test", "results_assertion", "seconds"]
+           "by_results_assertion", "results_test", "results_assertion", "seconds", "equivalent"]
 
 
 def load_mutants(path=MUTANTS):
@@ -159,7 +159,7 @@ def failure_kind(kind, line, message):
         return "exception"
     if "driver failed" in message or "returncode == 0" in line:
         return "run failed"
-    if "returncode" in line:
+    if "returncode" in line or "stderr" in line or "stdout" in line:
         return "negative test"
     return "results assertion"
 
@@ -190,7 +190,7 @@ def run_mutant(copy, mutant, scratch):
     row = {"id": mutant["id"], "file": " ".join(dict.fromkeys(e["file"] for e in mutant["edits"])),
            "family": mutant["family"], "description": mutant["description"], "first_failing_test": "",
            "first_failure": "", "caught_by": "", "by_results_assertion": "no", "results_test": "",
-           "results_assertion": ""}
+           "results_assertion": "", "equivalent": mutant.get("equivalent", "")}
     start = time.monotonic()
     backup, originals = {}, {}
     try:
