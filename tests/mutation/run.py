@@ -29,7 +29,6 @@ other rows). docs/mutation.md describes the check and how to add a mutant.
 import argparse
 import csv
 import os
-import re
 import shutil
 import subprocess
 import sys
@@ -244,7 +243,9 @@ def run_mutant(copy, mutant, scratch):
 def baseline(copy, mutants, scratch):
     tests = sorted({t for m in mutants for t in m["tests"]})
     print(f"clean copy: {len(tests)} test files", flush=True)
+    start = time.monotonic()
     code, failed = pytest_run(copy, tests, [], scratch / "junit.xml", exitfirst=False)
+    print(f"clean copy: {'passed' if code == 0 else 'failed'} in {time.monotonic() - start:.0f} s", flush=True)
     if code != 0:
         for node, kind, line, message in failed:
             print(f"  {kind}: {node}: {short(line)} | {short(message)}")
