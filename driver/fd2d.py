@@ -197,14 +197,14 @@ def summary_lines(results):
     if len(steps.get("dofs", [])) > 1:
         lines.append(f"adaptation: {len(steps['dofs'])} solves, DOFs {int(steps['dofs'][0])} -> "
                      f"{int(steps['dofs'][-1])}, eta {steps['eta'][0]:.4g} -> {steps['eta'][-1]:.4g}, "
-                     f"body 1 area {steps['area_body1'][0]:.6f} -> {steps['area_body1'][-1]:.6f}")
+                     f"body 1 area {steps['measure_body1'][0]:.6f} -> {steps['measure_body1'][-1]:.6f}")
     lines += gate_lines(results)
     return lines + [
         f"bodies: {results['dofs_body1']} + {results['dofs_body2']} DOFs on the cut spaces, "
-        f"areas {results['areas']['body1']:.6g} and {results['areas']['body2']:.6g}",
+        f"areas {results['measures']['body1']:.6g} and {results['measures']['body2']:.6g}",
     ] + [f"probe {name}: displacement ({u[0]:.6g}, {u[1]:.6g})"
          for name, u in results.get("probes", {}).items()] + support_lines(results) + [
-        f"contact: active length {contact['active_length']:.4g} of {contact['boundary_length']:.4g}, "
+        f"contact: active length {contact['active_measure']:.4g} of {contact['boundary_measure']:.4g}, "
         f"force on body 1 ({contact['force_on_body1'][0]:.4g}, {contact['force_on_body1'][1]:.6g}), "
         f"balance error {contact['force_balance_error']:.1e}, max pressure {contact['max_pressure']:.4g}"
         + (f" (recovered {contact['max_pressure_recovered']:.4g})" if "max_pressure_recovered" in contact else ""),

@@ -203,14 +203,14 @@ def summary_lines(results):
     if len(steps.get("dofs", [])) > 1:
         lines.append(f"adaptation (tetgen): {len(steps['dofs'])} solves, DOFs {int(steps['dofs'][0])} -> "
                      f"{int(steps['dofs'][-1])}, eta {steps['eta'][0]:.4g} -> {steps['eta'][-1]:.4g}, "
-                     f"body 1 volume {steps['volume_body1'][0]:.6f} -> {steps['volume_body1'][-1]:.6f}")
+                     f"body 1 volume {steps['measure_body1'][0]:.6f} -> {steps['measure_body1'][-1]:.6f}")
     lines += gate_lines(results)
     return lines + [
         f"bodies: {results['dofs_body1']} + {results['dofs_body2']} DOFs on the cut spaces, "
-        f"volumes {results['volumes']['body1']:.6g} and {results['volumes']['body2']:.6g}",
+        f"volumes {results['measures']['body1']:.6g} and {results['measures']['body2']:.6g}",
     ] + [f"probe {name}: displacement ({u[0]:.3g}, {u[1]:.3g}, {u[2]:.6g})"
          for name, u in results.get("probes", {}).items()] + support_lines(results) + [
-        f"contact: active area {contact['active_area']:.4g} of {contact['boundary_area']:.4g}, "
+        f"contact: active area {contact['active_measure']:.4g} of {contact['boundary_measure']:.4g}, "
         f"force on body 1 ({force[0]:.3g}, {force[1]:.3g}, {force[2]:.6g}), "
         f"balance error {contact['force_balance_error']:.1e}, max pressure {contact['max_pressure']:.4g}"
         + (f" (recovered {contact['max_pressure_recovered']:.4g})" if "max_pressure_recovered" in contact else ""),
