@@ -76,9 +76,10 @@ def tool_errors(tool, ref, run, *extra, out=None):
 
 
 class Run:
-    def __init__(self, folder):
+    def __init__(self, folder, summary=""):
         self.folder = Path(folder)
         self.results = json.loads((self.folder / "results.json").read_text())
+        self.summary = summary      # what the driver printed (its summary), when run by it
 
     def points_and_displacement(self):
         vtu = meshio.read(self.folder / "fields.vtu")
@@ -101,7 +102,7 @@ def run_scene(tmp_path):
             args += ["--set", item]
         proc = run_cli(*args)
         assert proc.returncode == 0, f"driver failed ({proc.returncode}):\n{proc.stderr}\n{proc.stdout}"
-        return Run(out)
+        return Run(out, proc.stdout)
 
     return _run
 
