@@ -54,6 +54,7 @@ def format_summary(scene, module, results, folder, wall):
     lines = [
         f"scene {scene['scene']['name']} ({scene['scene']['script']}, P{meth['degree']}, "
         f"theta={meth['theta']:g}, gamma0={meth['gamma0']:.4g})",
+        *(module.summary_head(results) if hasattr(module, "summary_head") else []),
         f"mesh: {results['elements']} elements, h_max {results['h_max']:.4g}, {results['dofs']} DOFs",
         f"newton: {newton['iterations']} iterations, final residual {newton['residual'][-1]:.2e}",
     ]

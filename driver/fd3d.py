@@ -22,7 +22,7 @@ import numpy as np
 
 from driver.errors import SceneError
 from driver.fd2d import body_schema
-from driver.scene_module import check_two_bodies, gate_lines, support_lines
+from driver.scene_module import check_two_bodies, summary_head, summary_lines  # noqa: F401  (the CLI's)
 from driver.scene_module import scene_module  # noqa: F401  (the runner calls module.scene_module)
 from driver.scene import SCENE_HEADER
 from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, Range, at_least, between, positive,
@@ -189,32 +189,3 @@ def freefem_args(scene, mesh_file=""):
 
 def prepare_mesh(scene, workdir, run_command):
     return ""      # the background mesh is a FreeFEM cube
-
-
-def summary_lines(results):
-    contact, cut = results["contact"], results["cut"]
-    force = contact["force_on_body1"]
-    lines = []
-    est = results.get("estimator")
-    if est:
-        lines.append("estimator: eta {eta:.4g} (eta1 {eta1:.3g}, eta2 {eta2:.3g}, eta3 {eta3:.3g}, eta4 {eta4:.3g}, "
-                     "eta5 {eta5:.3g}), zeta {zeta:.3g}; body 1 {eta_body1:.3g}, body 2 {eta_body2:.3g}".format(**est))
-    steps = results.get("steps", {})
-    if len(steps.get("dofs", [])) > 1:
-        lines.append(f"adaptation (tetgen): {len(steps['dofs'])} solves, DOFs {int(steps['dofs'][0])} -> "
-                     f"{int(steps['dofs'][-1])}, eta {steps['eta'][0]:.4g} -> {steps['eta'][-1]:.4g}, "
-                     f"body 1 volume {steps['volume_body1'][0]:.6f} -> {steps['volume_body1'][-1]:.6f}")
-    lines += gate_lines(results)
-    return lines + [
-        f"bodies: {results['dofs_body1']} + {results['dofs_body2']} DOFs on the cut spaces, "
-        f"volumes {results['volumes']['body1']:.6g} and {results['volumes']['body2']:.6g}",
-    ] + [f"probe {name}: displacement ({u[0]:.3g}, {u[1]:.3g}, {u[2]:.6g})"
-         for name, u in results.get("probes", {}).items()] + support_lines(results) + [
-        f"contact: active area {contact['active_area']:.4g} of {contact['boundary_area']:.4g}, "
-        f"force on body 1 ({force[0]:.3g}, {force[1]:.3g}, {force[2]:.6g}), "
-        f"balance error {contact['force_balance_error']:.1e}, max pressure {contact['max_pressure']:.4g}"
-        + (f" (recovered {contact['max_pressure_recovered']:.4g})" if "max_pressure_recovered" in contact else ""),
-        f"cut elements: min ratio {cut['min_ratio_body1']:.2e} (body 1), {cut['min_ratio_body2']:.2e} (body 2); "
-        f"stabilization {cut['stabilization']}: cases a/b/c = {cut['case_a']}/{cut['case_b']}/{cut['case_c']} "
-        f"(per cut piece), sliver elements dropped {cut['dropped_body1']} + {cut['dropped_body2']}",
-    ]

@@ -213,7 +213,7 @@ def summary_lines(results):
     lines = []
     if box and box[0] <= box[2]:
         lines.append(
-            f"contact zone: active length {contact['active_length']:.4g}, "
+            f"contact zone: active length {contact['active_measure']:.4g}, "
             f"x in [{box[0]:.4g}, {box[2]:.4g}], y in [{box[1]:.4g}, {box[3]:.4g}]")
     else:
         lines.append("contact zone: empty (no active contact point)")

@@ -132,7 +132,7 @@ def read_results(folder):
 
 # The entries of results.json that are tables (JSON objects) when present.
 TABLES = ("contact", "steps", "newton", "outputs", "balance", "estimator", "reference", "timings_cpu_s",
-          "areas", "volumes", "linear_solver", "reactions", "probes")
+          "measures", "linear_solver", "reactions", "probes")
 
 
 def read_scene(folder):
@@ -678,8 +678,8 @@ def figure_pressure_2d(run, frame, note):
         force = float((frame["weight"] * frame["pressure"]).sum())
         lines.append(f"integral of p ds = {force:.4g} [force/{run.length}]")
     contact = run.results.get("contact") or {}
-    if isinstance(contact.get("active_length"), (int, float)):
-        lines.append(f"active length {contact['active_length']:.4g} [{run.length}]")
+    if isinstance(contact.get("active_measure"), (int, float)):
+        lines.append(f"active length {contact['active_measure']:.4g} [{run.length}]")
     if note:
         lines.append(note)
     ax.text(0.01, 0.98, "\n".join(lines), transform=ax.transAxes, va="top", fontsize=8)

@@ -417,6 +417,75 @@ def support_lines(results):
             for name, force in by_support.items()]
 
 
+def summary_head(results):
+    """The first lines of a two-body run's summary (after the scene's): the recovered peak
+    pressure and how many elements the contact zone spans, and a warning when that is
+    below what the recovered pressure needs."""
+    contact = results["contact"]
+    lines = [contact_headline(contact)]
+    if contact.get("active_extent") and not contact.get("zone_resolved", 1):
+        lines.append(f"WARNING: the contact zone is not resolved: its half-width spans "
+                     f"{contact['zone_elements']:.2g} elements, the recovered pressure needs "
+                     f"{contact['zone_elements_needed']:g} (refine near the contact: mesh.nx, adapt.steps); "
+                     f"forces and displacements are not affected")
+    return lines
+
+
+def summary_lines(results):
+    """The rest of a two-body run's summary (2D or 3D): the gates, estimators, adaptation
+    (and why it stopped), bodies, probes, supports, the contact's force and balance, cut
+    statistics."""
+    contact, cut, dim = results["contact"], results["cut"], results["dim"]
+    measure, active = ("area", "length") if dim == 2 else ("volume", "area")
+    lines = gate_lines(results)
+    est = results.get("estimator")
+    if est:
+        lines.append("estimator: eta {eta:.4g} (eta1 {eta1:.3g}, eta2 {eta2:.3g}, eta3 {eta3:.3g}, eta4 {eta4:.3g}, "
+                     "eta5 {eta5:.3g}), zeta {zeta:.3g}".format(**est))
+    lines += adaptation_lines(results, measure)
+    force = contact["force_on_body1"]
+    return lines + [
+        f"bodies: {results['dofs_body1']} + {results['dofs_body2']} DOFs on the cut spaces, "
+        f"{measure}s {results['measures']['body1']:.6g} and {results['measures']['body2']:.6g}",
+    ] + [f"probe {name}: displacement ({', '.join(f'{v:.6g}' for v in u)})"
+         for name, u in results.get("probes", {}).items()] + support_lines(results) + [
+        f"contact: active {active} {contact['active_measure']:.4g} of {contact['boundary_measure']:.4g}, "
+        f"force on body 1 ({', '.join(f'{v:.6g}' for v in force)}), "
+        f"balance error {contact['force_balance_error']:.1e}, raw pressure peak {contact['max_pressure']:.4g}",
+        f"cut elements: min ratio {cut['min_ratio_body1']:.2e} (body 1), {cut['min_ratio_body2']:.2e} (body 2); "
+        f"stabilization {cut['stabilization']}: cases a/b/c = {cut['case_a']}/{cut['case_b']}/{cut['case_c']}, "
+        f"sliver elements dropped {cut.get('dropped_body1', 0)} + {cut.get('dropped_body2', 0)}",
+    ]
+
+
+def contact_headline(contact):
+    """The summary's first line: the recovered peak pressure (the raw multiplier's scatters,
+    docs/outputs.md) and the contact zone's size in elements."""
+    if not contact.get("active_extent"):
+        return "contact: no active contact point"
+    return (f"contact: peak pressure {contact['max_pressure_recovered']:.4g} (recovered; raw "
+            f"{contact['max_pressure']:.4g}), zone half-width {contact['zone_half_width']:.4g} = "
+            f"{contact['zone_elements']:.2g} elements of size {contact['zone_element_size']:.3g}")
+
+
+def adaptation_lines(results, measure):
+    """The adaptive loop: its solves, DOFs, eta and body 1's measure, and why it stopped
+    (results.json adapt.stop; the DOF budget by name)."""
+    steps, adapt = results.get("steps", {}), results.get("adapt", {})
+    if len(steps.get("dofs", [])) < 2 and adapt.get("steps_requested", 0) == 0:
+        return []
+    why = {"steps": "after every step asked",
+           "eta_target": "at the estimator target adapt.eta_target",
+           "dof_budget": f"at its DOF budget (adapt.max_dofs = {adapt.get('max_dofs', 0):g}: the next mesh "
+                         f"would pass it) after {adapt.get('steps_done', 0):g} of "
+                         f"{adapt.get('steps_requested', 0):g} steps"}.get(adapt.get("stop"), "")
+    remesher = "tetgen" if results["dim"] == 3 else "adaptmesh"
+    return [f"adaptation ({remesher}): {len(steps['dofs'])} solves, DOFs "
+            f"{int(steps['dofs'][0])} -> {int(steps['dofs'][-1])}, eta {steps['eta'][0]:.4g} -> "
+            f"{steps['eta'][-1]:.4g}, body 1 {measure} {steps['measure_body1'][0]:.6f} -> "
+            f"{steps['measure_body1'][-1]:.6f}" + (f"; stopped {why}" if why else "")]
+
+
 def gate_lines(results):
     """Summary lines of a run kept past its gates (results.json plausibility and balance,
     freefem/lib/core/gates.idp): what the scene's allow flag let through."""

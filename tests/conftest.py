@@ -89,7 +89,7 @@ def check_newton_stop(results, scene):
         return
     tol = scene["solver"]["newton_tol"] if scene and "solver" in scene else newton.get("tolerance")
     contact = results.get("contact", {})
-    boundary = max(contact.get("boundary_length", contact.get("boundary_area", 1.0)), 1.0)
+    boundary = max(contact.get("boundary_measure", 1.0), 1.0)
     changed, residual = newton["changed_measure"], newton["residual"]
     assert changed[-1] <= 1e-12 * boundary, f"Newton stopped on a changed active set: {changed}"
     floor = newton.get("converged_by") == "roundoff_floor"
@@ -101,11 +101,13 @@ def check_newton_stop(results, scene):
 
 
 class Run:
-    """A converged run's folder: results.json read, and its Newton stop checked."""
+    """A converged run's folder: results.json read, and its Newton stop checked; summary:
+    what the driver printed, when it ran it."""
 
-    def __init__(self, folder):
+    def __init__(self, folder, summary=""):
         self.folder = Path(folder)
         self.results = json.loads((self.folder / "results.json").read_text())
+        self.summary = summary
         scene = self.folder / "scene.json"
         check_newton_stop(self.results, json.loads(scene.read_text()) if scene.is_file() else None)
 
@@ -125,7 +127,7 @@ def driver_run(case, out, *overrides):
         args += ["--set", item]
     proc = run_cli(*args)
     assert proc.returncode == 0, f"driver failed ({proc.returncode}):\n{proc.stderr}\n{proc.stdout}"
-    return Run(out)
+    return Run(out, proc.stdout)
 
 
 @pytest.fixture

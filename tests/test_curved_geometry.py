@@ -46,7 +46,7 @@ def test_disk_area_perimeter_and_integral_at_nx20(tmp_path):
 
 def test_solver_reports_the_curved_areas(tmp_path):
     r = solve(tmp_path, 20)
-    areas = r["areas"]
+    areas = r["measures"]
     assert abs(areas["body1"] - areas["body1_exact"]) / areas["body1_exact"] < 1e-8   # measured -2.7e-9
     assert areas["body2"] == pytest.approx(0.25, rel=1e-12)
     assert r["newton"]["residual"][-1] < 1e-8
@@ -62,8 +62,8 @@ def test_adapted_meshes_keep_the_curved_area(tmp_path):
     # the area from the cell's boundary disagrees).
     # python3 -m driver run cases/disk_on_slab.toml --set mesh.nx=20 --set adapt.steps=4
     r = solve(tmp_path, 20, "curved", "-adapt_steps", 4, estimators=1)
-    exact = r["areas"]["body1_exact"]
-    errors = [abs(a - exact) / exact for a in r["steps"]["area_body1"]]
+    exact = r["measures"]["body1_exact"]
+    errors = [abs(a - exact) / exact for a in r["steps"]["measure_body1"]]
     assert len(errors) == 5
     # measured -2.7e-9, -2.1e-10, 4.3e-10, -6.8e-10, -1.5e-9
     assert max(errors) < 1e-8, errors
@@ -71,7 +71,7 @@ def test_adapted_meshes_keep_the_curved_area(tmp_path):
 
 def test_p1_geometry_stays_available(tmp_path):
     r = solve(tmp_path, 20, "p1")
-    areas = r["areas"]
+    areas = r["measures"]
     assert (areas["body1"] - areas["body1_exact"]) / areas["body1_exact"] == pytest.approx(-7.07e-3, rel=1e-2)
 
 
@@ -140,7 +140,7 @@ def test_3d_solver_on_the_curved_geometry(tmp_path):
         assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
         results[geometry] = json.loads((out / "results.json").read_text())
     def volume_error(r):
-        v = r["volumes"]
+        v = r["measures"]
         return (v["body1"] - v["body1_exact"]) / v["body1_exact"]
     assert abs(volume_error(results["curved"])) < 3e-4      # measured -1.83e-4 (the tool's figure)
     assert volume_error(results["p1"]) == pytest.approx(-0.1265, rel=1e-3)
@@ -148,7 +148,7 @@ def test_3d_solver_on_the_curved_geometry(tmp_path):
     assert curved["balance"]["balance_error"] < 1e-7         # 2.2e-8
     assert curved["newton"]["residual"][-1] < 1e-12
     # the load the contact carries is the body force (f_z = -0.1) on the curved volume
-    assert curved["contact"]["force_on_body1"][2] == pytest.approx(0.1 * curved["volumes"]["body1"], rel=1e-7)  # 2.2e-8
+    assert curved["contact"]["force_on_body1"][2] == pytest.approx(0.1 * curved["measures"]["body1"], rel=1e-7)  # 2.2e-8
 
 
 def sphere_section_area():

@@ -30,9 +30,9 @@ def test_disk_on_slab_converges_and_balances(module_scene, degree, theta):
     assert r["newton"]["residual"][-1] < 1e-6
     # the contact force carries the disk's weight (0, -0.1 |disk|)
     applied = r["contact"]["applied_force_body1"][1]
-    assert applied == pytest.approx(-0.1 * r["areas"]["body1"], rel=1e-12)
+    assert applied == pytest.approx(-0.1 * r["measures"]["body1"], rel=1e-12)
     assert r["contact"]["force_balance_error"] < 1e-6
-    assert 0 < r["contact"]["active_length"] < 0.5 * r["contact"]["boundary_length"]
+    assert 0 < r["contact"]["active_measure"] < 0.5 * r["contact"]["boundary_measure"]
     # the disk goes down by about 0.018 (NX = 80 P2 gives -0.01838)
     assert -0.025 < centre_y(run) < -0.014
     assert r["dofs"] == r["dofs_body1"] + r["dofs_body2"]
@@ -78,7 +78,7 @@ def test_eta1_of_p1_is_the_load_residual(module_scene, theta):
     Omega_i| = h^2 |f|^2 |disk| (f = (0, -0.1) on the disk, 0 on the slab; one h_K on
     the uniform mesh): 2e-15 relative measured."""
     r = disk24(module_scene, 1, theta).results
-    assert r["estimator"]["eta1"] == pytest.approx(r["h_max"] * 0.1 * math.sqrt(r["areas"]["body1"]), rel=1e-13)
+    assert r["estimator"]["eta1"] == pytest.approx(r["h_max"] * 0.1 * math.sqrt(r["measures"]["body1"]), rel=1e-13)
 
 
 def test_a_loose_tolerance_stops_on_the_same_solution(module_scene):
@@ -115,8 +115,8 @@ def test_slab_interface_on_mesh_edges_is_handled(run_scene):
     # nx = 40: y = -0.25 lies on grid lines; nx = 42: it cuts the elements.
     on_edges = run_scene(DISK, "mesh.nx=40")
     cutting = run_scene(DISK, "mesh.nx=42")
-    assert on_edges.results["areas"]["body2"] == pytest.approx(0.25, rel=1e-9)
-    assert cutting.results["areas"]["body2"] == pytest.approx(0.25, rel=1e-9)
+    assert on_edges.results["measures"]["body2"] == pytest.approx(0.25, rel=1e-9)
+    assert cutting.results["measures"]["body2"] == pytest.approx(0.25, rel=1e-9)
     assert centre_y(on_edges) == pytest.approx(centre_y(cutting), rel=0.01)
 
 
@@ -133,7 +133,7 @@ def test_tilted_cut_dirichlet_scene(run_scene):
     r = run.results
     assert r["supports"]["nitsche_hold_points_body2"] > 0
     assert r["cut"]["dirichlet_case_a"] + r["cut"]["dirichlet_case_b"] + r["cut"]["dirichlet_case_c"] > 0
-    assert r["areas"]["body2"] == pytest.approx(0.19, rel=1e-9)   # between y = -0.44 + 0.1x and -0.25
+    assert r["measures"]["body2"] == pytest.approx(0.19, rel=1e-9)   # between y = -0.44 + 0.1x and -0.25
     assert r["contact"]["force_balance_error"] < 1e-6
 
 
@@ -217,4 +217,4 @@ def test_sliver_cuts_are_dropped_not_fatal(run_scene, stabilization):
     assert sliver.results["newton"]["residual"][-1] < 1e-8
     assert sliver.results["newton"]["iterations"] <= plain.results["newton"]["iterations"] + 2
     assert centre_y(sliver) == pytest.approx(centre_y(plain), rel=0.02)
-    assert sliver.results["areas"]["body2"] == pytest.approx(0.25 + shift, rel=1e-9)
+    assert sliver.results["measures"]["body2"] == pytest.approx(0.25 + shift, rel=1e-9)

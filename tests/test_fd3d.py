@@ -32,7 +32,7 @@ def test_ball_on_slab_converges_and_balances(module_scene, theta):
     assert r["newton"]["residual"][-1] < 1e-8
     # equilibrium: the contact force on the ball carries its weight (0, 0, -0.1 |ball|)
     applied = r["contact"]["applied_force_body1"]
-    assert applied[2] == pytest.approx(-0.1 * r["volumes"]["body1"], rel=1e-12)
+    assert applied[2] == pytest.approx(-0.1 * r["measures"]["body1"], rel=1e-12)
     # the contact force against the applied load, computed apart from the assembly:
     # 3.0e-8 measured (what the mass term carries)
     force = r["contact"]["force_on_body1"]
@@ -40,9 +40,9 @@ def test_ball_on_slab_converges_and_balances(module_scene, theta):
     assert r["contact"]["force_balance_error"] < 1e-7
     assert r["balance"]["balance_error"] < 1e-7
     # the P1 ball {phi1_h < 0} lies inside the exact ball (phi1 is convex); slab exact
-    assert 0.8 * 0.0654498 < r["volumes"]["body1"] < 0.0654498
-    assert r["volumes"]["body2"] == pytest.approx(0.25, rel=1e-8)
-    assert 0 < r["contact"]["active_area"] < 0.1 * r["contact"]["boundary_area"]
+    assert 0.8 * 0.0654498 < r["measures"]["body1"] < 0.0654498
+    assert r["measures"]["body2"] == pytest.approx(0.25, rel=1e-8)
+    assert 0 < r["contact"]["active_measure"] < 0.1 * r["contact"]["boundary_measure"]
     assert -0.05 < centre_z(run) < -0.02
     assert r["dofs"] == r["dofs_body1"] + r["dofs_body2"]
     assert r["dofs_body1"] < 0.5 * r["dofs"]      # unused background DOFs never enter
@@ -82,7 +82,7 @@ def test_slab_top_cutting_the_elements_and_neighbour_stabilization(run_scene):
     # nx = 10: z = -0.25 cuts the cells (nx = 8: it lies on a grid plane)
     plain = run_scene(BALL, "mesh.nx=10")
     stab = run_scene(BALL, "mesh.nx=10", "method.stabilization='neighbour'")
-    assert plain.results["volumes"]["body2"] == pytest.approx(0.25, rel=1e-8)
+    assert plain.results["measures"]["body2"] == pytest.approx(0.25, rel=1e-8)
     assert plain.results["cut"]["cut_elements_body2"] > 0
     cut = stab.results["cut"]
     # face neighbours (two rings) hold a well cut element for almost every badly cut one
@@ -101,7 +101,7 @@ def test_sliver_cuts_are_dropped_and_the_smallest_kept_ratio_reported(run_scene)
     assert cut["drop_ratio"] < cut["min_kept_ratio_body2"] <= 1
     assert cut["min_ratio_body1"] <= cut["min_kept_ratio_body1"] <= 1
     assert sliver.results["newton"]["residual"][-1] < 1e-8
-    assert sliver.results["volumes"]["body2"] == pytest.approx(0.25 + shift, rel=1e-9)
+    assert sliver.results["measures"]["body2"] == pytest.approx(0.25 + shift, rel=1e-9)
 
 
 def test_outputs_are_readable(module_scene):
@@ -150,7 +150,7 @@ def test_error_routine_measures_a_known_shift(run_scene, tmp_path):
         expected = 1e-3 * err[body]["volume_ref"] ** 0.5
         assert err[body]["l2_abs"] == pytest.approx(expected, rel=1e-9)
         assert err[body]["h1_abs"] == pytest.approx(expected, rel=1e-9)
-    assert err["body1"]["volume_ref"] == pytest.approx(run.results["volumes"]["body1"], rel=1e-9)
+    assert err["body1"]["volume_ref"] == pytest.approx(run.results["measures"]["body1"], rel=1e-9)
 
 
 def test_neighbour_stabilization_rescues_theta_one(run_scene, tmp_path):

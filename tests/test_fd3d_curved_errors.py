@@ -55,7 +55,7 @@ def test_shift_against_itself_on_the_curved_cells(runs, path):
         assert body["l2_ref"] == pytest.approx(r["norms"][f"l2_body{b}"], rel=1e-9)
         assert body["h1_ref"] == pytest.approx(r["norms"][f"h1_body{b}"], rel=1e-9)
     # the curved ball: volume error -1.8e-4 (the P1 cut at nx = 8: -0.127)
-    exact = r["volumes"]["body1_exact"]
+    exact = r["measures"]["body1_exact"]
     assert abs(e["body1"]["volume_ref"] - exact) / exact < 3e-4
     assert e["body1"]["curved_points"] > 0
 

@@ -51,12 +51,12 @@ def test_adaptive_refinement_lowers_eta_and_keeps_the_ball(run_scene):
     assert steps["eta"][2] < steps["eta"][1] < steps["eta"][0]
     # element growth per step near the requested 2 (bisected against tetgen's count)
     assert all(1.4 < g < 3.0 for g in steps["element_growth_after"][:2])
-    for volume in steps["volume_body1"]:
+    for volume in steps["measure_body1"]:
         assert volume == pytest.approx(BALL_VOLUME, rel=0.22)
-    assert steps["volume_body1"][-1] == pytest.approx(BALL_VOLUME, rel=0.1)
+    assert steps["measure_body1"][-1] == pytest.approx(BALL_VOLUME, rel=0.1)
     # the refined P1 ball grows towards the exact one (its P1 interpolant is inscribed)
-    assert steps["volume_body1"][0] < steps["volume_body1"][-1] < BALL_VOLUME
-    for volume in steps["volume_body2"]:
+    assert steps["measure_body1"][0] < steps["measure_body1"][-1] < BALL_VOLUME
+    for volume in steps["measure_body2"]:
         assert volume == pytest.approx(0.25, rel=1e-8)
     # the clamp (label 5) and the pins survive remeshing: the equilibrium holds
     assert r["contact"]["force_balance_error"] < 0.01

@@ -123,7 +123,7 @@ def test_projection_on_an_ellipsoid_is_the_closest_point(tmp_path):
     centre, axes = np.array([0.0, 0.0, -0.5]), np.array([0.6, 0.45, 0.25])
     phi2 = "lsEllipsoid(px, py, pz, 0.0, 0.0, -0.5, 0.6, 0.45, 0.25)"
     r, out = solved(tmp_path, scene_module(phi2=phi2, exact=(4 / 3 * math.pi * 0.25 ** 3, -1)), "-allow_unbalanced", 1)
-    assert r["volumes"]["body2_exact"] is None
+    assert r["measures"]["body2_exact"] is None
     assert r["newton"]["converged_by"] == "tolerance"
     csv = pd.read_csv(out / "contact_pressure.csv")
     x = csv[["x", "y", "z"]].to_numpy()
@@ -198,12 +198,12 @@ def test_volumes_against_the_exact_ones(tmp_path):
     # the default ball on slab written as a module: the P1 ball is inscribed in the
     # exact one, the slab exact; an unknown exact measure is null
     r, _ = solved(tmp_path, scene_module())
-    v = r["volumes"]
+    v = r["measures"]
     assert v["body1_exact"] == pytest.approx(4 / 3 * math.pi * 0.25 ** 3, rel=1e-15)
     assert 0.86 * v["body1_exact"] < v["body1"] < 0.89 * v["body1_exact"]      # measured 0.8735
     assert v["body2"] == pytest.approx(v["body2_exact"], rel=1e-9)
     r2, _ = solved(tmp_path, scene_module(exact=(-1, 0.25)), name="unknown")
-    assert r2["volumes"]["body1_exact"] is None and r2["volumes"]["body1"] == v["body1"]
+    assert r2["measures"]["body1_exact"] is None and r2["measures"]["body1"] == v["body1"]
 
 
 # ---------------------------------------------------------------- cut-boundary holds and loads

@@ -18,7 +18,7 @@ def test_patch_block_is_exact(run_scene, degree, theta):
     xy, u = run.points_and_displacement()
     exact = np.column_stack([p * nu * (1 + nu) / E * xy[:, 0], -p * (1 - nu**2) / E * xy[:, 1]])
     assert relative_max_error(u, exact) < 1e-9
-    assert run.results["contact"]["active_length"] == pytest.approx(1.0, abs=1e-12)
+    assert run.results["contact"]["active_measure"] == pytest.approx(1.0, abs=1e-12)
     assert run.results["contact"]["force_on_body"][1] == pytest.approx(p, rel=1e-9)
 
 
@@ -34,7 +34,7 @@ def test_separation_matches_problem_without_contact(run_scene, degree):
     without = run_scene("cases/square_slip_separation.toml", *settings, FREE_BOTTOM)
     samples = with_contact.contact_samples()
     assert (samples["pressure"] == 0).all()
-    assert with_contact.results["contact"]["active_length"] == 0
+    assert with_contact.results["contact"]["active_measure"] == 0
     _, u_contact = with_contact.points_and_displacement()
     _, u_free = without.points_and_displacement()
     assert relative_max_error(u_contact, u_free) < 1e-12

@@ -75,7 +75,7 @@ def test_sliver_cuts_with_stabilization(tmp_path, reference, name, stabilization
         assert cut["min_ratio_body1"] < 1e-6
         assert cut["min_kept_ratio_body1"] < 1e-6
     else:                            # the slab top on grid lines: no cut element of the slab
-        assert perturbed["areas"]["body2"] == pytest.approx(0.25, rel=1e-9)
+        assert perturbed["measures"]["body2"] == pytest.approx(0.25, rel=1e-9)
     ratio = h1_error(reference, tmp_path / "perturbed") / h1_error(reference, tmp_path / "plain")
     print(f"{name} ({stabilization}): H1 error ratio perturbed/unperturbed {ratio:.4f}")
     assert ratio <= 1.5
@@ -111,7 +111,7 @@ def test_hard_scene_converges_bounded(tmp_path, name, balance):
     assert r["newton"]["iterations"] <= 12
     assert r["newton"]["residual"][-1] < 1e-8
     assert c["force_balance_error"] < balance
-    assert c["active_length"] > 0
+    assert c["active_measure"] > 0
     assert c["max_penetration"] < 0.02 * abs(uy)       # measured at most 1% (gamma0 = 100)
     assert -0.035 < uy < -0.008                        # base scene settles by 0.019
     if name == "initial_gap":                          # the gap 0.01 closed, then the base settlement

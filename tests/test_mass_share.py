@@ -1,5 +1,5 @@
 """The mass term's share of a floating body's balance is integrated on the solve's own
-cut geometry (fd2d/geometry.idp fdBodyIntegral, fd3d/geometry.idp fdBodyIntegral3).
+cut geometry (fd2d/geometry.idp fdBodyIntegral, fd3d/geometry.idp fdBodyIntegral).
 
 Tested with translations, the discrete equations of body 1 say load + contact + pins +
 mass = 0, so the part of the load the contact does not carry (balance_error) is the

@@ -167,3 +167,36 @@ def test_foundation_fields_keep_the_p2_nodes(tmp_path):
     design = np.c_[np.ones(len(mesh.points)), mesh.points[:, :2]]
     fit, *_ = np.linalg.lstsq(design, u, rcond=None)
     assert np.abs(design @ fit - u).max() < 1e-9 * np.abs(u).max()
+
+
+def test_the_summary_says_when_the_contact_zone_is_not_resolved(run_scene):
+    """results.json contact.zone_elements = the zone's half-width over the mean h_K at the
+    active points (the recovery's window); below zone_elements_needed (3) the summary
+    warns. The disk on slab at NX = 20: 0.82 elements; at NX = 80: 3.62."""
+    coarse = run_scene("cases/disk_on_slab.toml", "mesh.nx=20")
+    fine = run_scene("cases/disk_on_slab.toml")
+    for run, resolved in ((coarse, 0), (fine, 1)):
+        c = run.results["contact"]
+        lo, hi = c["active_extent"]["x"]
+        assert c["zone_half_width"] == pytest.approx((hi - lo) / 2, rel=1e-12)
+        assert c["zone_elements"] == pytest.approx(c["zone_half_width"] / c["zone_element_size"], rel=1e-12)
+        assert c["zone_resolved"] == resolved and c["zone_elements_needed"] == 3
+    # the structured mesh's h_K is the diagonal h sqrt(2) wherever the contact is
+    assert coarse.results["contact"]["zone_element_size"] == pytest.approx(0.05 * 2 ** 0.5, rel=1e-12)
+    assert 0.7 < coarse.results["contact"]["zone_elements"] < 0.9
+    assert 3.4 < fine.results["contact"]["zone_elements"] < 3.8
+    summary = [line for line in coarse.summary.splitlines()]
+    assert summary[1].startswith("contact: peak pressure") and "(recovered;" in summary[1]
+    assert summary[2].startswith("WARNING: the contact zone is not resolved")
+    assert "WARNING" not in fine.summary
+
+
+def test_an_adaptation_stopped_by_its_dof_budget_says_so(run_scene):
+    run = run_scene("cases/disk_on_slab.toml", "mesh.nx=20", "method.degree=1", "adapt.steps=6",
+                    "adapt.max_dofs=5000")
+    adapt = run.results["adapt"]
+    assert adapt["stop"] == "dof_budget" and adapt["steps_done"] < 6
+    assert run.results["dofs"] * adapt["growth"] > adapt["max_dofs"]
+    assert "stopped at its DOF budget (adapt.max_dofs = 5000" in run.summary
+    full = run_scene("cases/disk_on_slab.toml", "mesh.nx=20", "method.degree=1", "adapt.steps=1")
+    assert full.results["adapt"]["stop"] == "steps" and "stopped after every step asked" in full.summary

@@ -45,7 +45,7 @@ def test_area_of_each_primitive_against_its_exact_value(tmp_path, run_scene, nam
     shape, exact = SHAPES[name]
     path = scene_file(tmp_path, BODY_ON_SLAB.format(nx=100, shape=shape))
     run = run_scene(path, *QUIET)
-    areas = run.results["areas"]
+    areas = run.results["measures"]
     if name == "expression":
         assert "body1_exact" not in areas
     else:
@@ -262,8 +262,8 @@ def test_ring_reports_its_probes_and_exact_area(run_scene):
     run = run_scene("cases/ring_on_slab.toml", *QUIET, "mesh.nx=60")
     r = run.results
     assert set(r["probes"]) == {"ring_bottom", "ring_top"}
-    assert r["areas"]["body1_exact"] == pytest.approx(math.pi * (0.25 ** 2 - 0.15 ** 2), rel=1e-12)
-    assert abs(r["areas"]["body1"] / r["areas"]["body1_exact"] - 1) < 1e-8   # curved cells: 2.7e-9
+    assert r["measures"]["body1_exact"] == pytest.approx(math.pi * (0.25 ** 2 - 0.15 ** 2), rel=1e-12)
+    assert abs(r["measures"]["body1"] / r["measures"]["body1_exact"] - 1) < 1e-8   # curved cells: 2.7e-9
     assert r["probes"]["ring_top"][1] < r["probes"]["ring_bottom"][1] < 0    # the ring is squeezed
 
 
@@ -296,9 +296,9 @@ def test_hertz_cylinders_on_a_coarse_adaptive_run(run_scene):
 
 def test_gmsh_outline_body(run_scene):
     run = run_scene("cases/cam_on_slab.toml", *QUIET, "mesh.nx=50")
-    assert run.results["areas"]["body1_exact"] > 0.15
+    assert run.results["measures"]["body1_exact"] > 0.15
     # the outline's distance has kinks inside the cam (its polyline's vertices): -7.9e-5
-    assert abs(run.results["areas"]["body1"] / run.results["areas"]["body1_exact"] - 1) < 2e-4
+    assert abs(run.results["measures"]["body1"] / run.results["measures"]["body1_exact"] - 1) < 2e-4
 
 
 def test_default_scene_module_is_the_generated_one():
@@ -370,8 +370,8 @@ def test_held_body_touching_nothing_carries_its_load_by_its_hold(run_scene):
                   "body1.body_force=[0.0, -0.1]", "body2.body_force=[0.1, -0.1]").results
     assert r["contact"]["force_on_body1"] == [0, 0]
     assert r["balance"]["balance_error"] < 1e-12 and r["contact"]["force_balance_error"] < 1e-12
-    assert r["reactions"]["body1"][1] == pytest.approx(0.1 * r["areas"]["body1"], rel=1e-10)
-    assert r["reactions"]["body2"] == pytest.approx([-0.1 * r["areas"]["body2"], 0.1 * r["areas"]["body2"]], rel=1e-10)
+    assert r["reactions"]["body1"][1] == pytest.approx(0.1 * r["measures"]["body1"], rel=1e-10)
+    assert r["reactions"]["body2"] == pytest.approx([-0.1 * r["measures"]["body2"], 0.1 * r["measures"]["body2"]], rel=1e-10)
 
 
 def test_ellipse_in_an_arch_is_held_by_the_contact_alone(run_scene):
@@ -381,10 +381,10 @@ def test_ellipse_in_an_arch_is_held_by_the_contact_alone(run_scene):
     nx = 40."""
     r = run_scene("cases/ellipse_on_arch.toml", *QUIET, "mesh.nx=40").results
     assert r["supports"]["pins"] == 0 and r["supports"]["floating_body1"] == 1
-    assert r["areas"]["body1_exact"] == pytest.approx(math.pi * 0.3 * 0.15, rel=1e-12)
-    assert abs(r["areas"]["body1"] / r["areas"]["body1_exact"] - 1) < 5e-9
+    assert r["measures"]["body1_exact"] == pytest.approx(math.pi * 0.3 * 0.15, rel=1e-12)
+    assert abs(r["measures"]["body1"] / r["measures"]["body1_exact"] - 1) < 5e-9
     assert r["balance"]["balance_error"] < 1e-6 and r["balance"]["mass_share"] < 1e-6
-    assert r["contact"]["force_on_body1"][1] == pytest.approx(0.1 * r["areas"]["body1"], rel=1e-6)
+    assert r["contact"]["force_on_body1"][1] == pytest.approx(0.1 * r["measures"]["body1"], rel=1e-6)
     assert r["probes"]["centre"][1] < 0
 
 

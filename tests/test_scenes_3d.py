@@ -21,10 +21,10 @@ def test_rounded_cube_volume_and_balance(run_scene):
     r = run.results
     inner, rad = 0.4 - 2 * 0.08, 0.08
     exact = inner ** 3 + 6 * inner ** 2 * rad + 3 * math.pi * inner * rad ** 2 + 4 / 3 * math.pi * rad ** 3
-    assert r["volumes"]["body1_exact"] == pytest.approx(exact, rel=1e-12)
-    assert 0 < 1 - r["volumes"]["body1"] / exact < 0.08
+    assert r["measures"]["body1_exact"] == pytest.approx(exact, rel=1e-12)
+    assert 0 < 1 - r["measures"]["body1"] / exact < 0.08
     assert r["balance"]["balance_error"] < 1e-6 and not r["balance"]["unbalanced"]
-    assert r["contact"]["force_on_body1"][2] == pytest.approx(0.1 * r["volumes"]["body1"], rel=1e-6)
+    assert r["contact"]["force_on_body1"][2] == pytest.approx(0.1 * r["measures"]["body1"], rel=1e-6)
 
 
 def test_sphere_on_sphere_balances_without_pins(run_scene, tmp_path):
@@ -34,7 +34,7 @@ def test_sphere_on_sphere_balances_without_pins(run_scene, tmp_path):
     assert r["supports"]["pins"] == 0 and not r["balance"]["unbalanced"]
     assert r["balance"]["balance_error"] < 1e-6
     assert r["probes"]["centre"][2] < 0
-    assert r["volumes"]["body1_exact"] is None      # the ball touches the box top: clipped, no formula
+    assert r["measures"]["body1_exact"] is None      # the ball touches the box top: clipped, no formula
     pinned = run_cli("run", "cases/sphere_on_sphere.toml", "--set",
                      "rigid.fix_xy_points=[0.0, 0.0, 0.25, 0.0, 0.0, 0.35]", "--set", "rigid.fix_y_point=[0.1, 0.0, 0.25]",
                      "--set", "output.vtu=false", "--out", str(tmp_path / "pinned"))
@@ -71,7 +71,7 @@ def test_held_body_touching_nothing_carries_its_load_by_its_hold(run_scene):
                   "rigid.fix_xy_points=[]").results
     assert r["contact"]["force_on_body1"] == [0, 0, 0]
     assert r["balance"]["balance_error"] < 1e-12 and r["contact"]["force_balance_error"] < 1e-12
-    assert r["reactions"]["body1"][2] == pytest.approx(0.1 * r["volumes"]["body1"], rel=1e-8)
+    assert r["reactions"]["body1"][2] == pytest.approx(0.1 * r["measures"]["body1"], rel=1e-8)
 
 
 def test_error_tools_work_on_shape_tree_scenes(run_scene, tmp_path):

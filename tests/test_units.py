@@ -56,6 +56,6 @@ def test_square_on_foundation_in_pascal(run_scene):
         assert relative(scaled.results["norms"][key], value) < 1e-8, key
     force_unit = unit.results["contact"]["force_on_body"][1]
     assert relative(scaled.results["contact"]["force_on_body"][1] / S, force_unit) < 1e-8
-    assert relative(scaled.results["contact"]["active_length"], unit.results["contact"]["active_length"]) < 1e-8
+    assert relative(scaled.results["contact"]["active_measure"], unit.results["contact"]["active_measure"]) < 1e-8
     assert scaled.results["newton"]["iterations"] == unit.results["newton"]["iterations"]
     assert unit.results["gamma0"] == 1.0 and scaled.results["gamma0"] == pytest.approx(1.0 / S, rel=1e-14)

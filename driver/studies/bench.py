@@ -442,7 +442,7 @@ def first_active_set():
                          factorizations=newton["factorizations"], gmres_iterations=newton["gmres_iterations"],
                          cpu_newton=timings["newton"], cpu_newton_factor_solve=timings["newton_factor_solve"],
                          final_residual=newton["final_residual"],
-                         active_length=results["contact"]["active_length"],
+                         active_length=results["contact"]["active_measure"],
                          centre_uy=results["probes"]["centre"][1]))
     table = pd.DataFrame(rows)
     default = table[table.active0 == FIRST_SET_ACTIVE0[0]].iloc[0]

@@ -100,7 +100,7 @@ def adaptive():
     progress(1, 1, f"adaptive P2 from NX = {ADAPT_START_NX}, {ADAPT_STEPS} steps")
     rows, results = adaptive_rows(ref, ADAPT_START_NX, ADAPT_STEPS, [])
     table = pd.DataFrame(rows)
-    exact = results["areas"]["body1_exact"]
+    exact = results["measures"]["body1_exact"]
     table["area_rel_err"] = (table.area_body1 - exact) / exact
     out = RESULTS_DIR / "curved_adaptive.csv"
     table.to_csv(out, index=False)
@@ -137,7 +137,7 @@ def centre_scan():
                           "active_xmin": rows["contact.active_extent.x.0"],
                           "active_xmax": rows["contact.active_extent.x.1"],
                           "newton_iterations": rows.newton_iterations, "wall_s": rows.wall_s,
-                          "area_rel_err": (rows["areas.body1"] - rows["areas.body1_exact"]) / rows["areas.body1_exact"]})
+                          "area_rel_err": (rows["measures.body1"] - rows["measures.body1_exact"]) / rows["measures.body1_exact"]})
     table["reference_uy"] = centre_ref
     table["rel_dev"] = (table.centre_uy - centre_ref) / abs(centre_ref)
     table.to_csv(RESULTS_DIR / "curved_centre_scan.csv", index=False)
@@ -192,10 +192,10 @@ def clamped_exact(scene_path):
             for probe in scene["probe"]}
 
 
-def patch_test(scene_path, ladder, csv, volume_key, quiet):
+def patch_test(scene_path, ladder, csv, measure_name, quiet):
     """The clamped scene on both geometries (quiet: the overrides that turn its output
     files off): largest probe error relative to the largest exact displacement, and
-    body 2's area (2D) or volume (3D) error: RESULTS_DIR/csv."""
+    body 2's area (2D) or volume (3D) error (column MEASURE_NAME_rel_err): RESULTS_DIR/csv."""
     exact = clamped_exact(scene_path)
     scale = max(np.linalg.norm(u) for u in exact.values())
     rows = []
@@ -206,10 +206,10 @@ def patch_test(scene_path, ladder, csv, volume_key, quiet):
         out = dict(geometry=geometry, nx=nx, status=row["status"])
         if results is not None:
             errors = {name: np.linalg.norm(np.array(results["probes"][name]) - u) / scale for name, u in exact.items()}
-            measure = results[volume_key]
+            measure = results["measures"]
             out.update({f"probe_err_{name}": e for name, e in errors.items()},
                        max_probe_err=max(errors.values()),
-                       **{f"{volume_key[:-1]}_rel_err": measure["body2"] / measure["body2_exact"] - 1},
+                       **{f"{measure_name}_rel_err": measure["body2"] / measure["body2_exact"] - 1},
                        newton_iterations=results["newton"]["iterations"], wall_s=row["wall_s"])
         rows.append(out)
     pd.DataFrame(rows).to_csv(RESULTS_DIR / csv, index=False)
@@ -222,12 +222,13 @@ def smooth_reference(scene_path, theta, nx, quiet):
                            f"the {scene_path.stem} reference (P2, NX = {nx}, theta = {theta:g})")
 
 
-def smooth_ladder(scene_path, thetas, ladder, reference_nx, quiet, tool, body2_errors, volume_key, csv, rates_csv):
+def smooth_ladder(scene_path, thetas, ladder, reference_nx, quiet, tool, body2_errors, measure_name, csv,
+                  rates_csv):
     """A held scene's ladder for each theta and both geometries against its curved
     reference (quiet: the overrides that turn output files and estimators off; tool: the
-    error script; body2_errors(errors.json) -> (L2, H1) of body 2, relative; volume_key:
-    results.json's areas or volumes), and its rates on the finest SMOOTH_RATE_MESHES
-    meshes."""
+    error script; body2_errors(errors.json) -> (L2, H1) of body 2, relative; measure_name:
+    area or volume, the column MEASURE_NAME_rel_err), and its rates on the finest
+    SMOOTH_RATE_MESHES meshes."""
     rows = []
     grid = [(theta, g, nx) for theta in thetas for g in GEOMETRIES for nx in ladder]
     for n, (theta, geometry, nx) in enumerate(grid, start=1):
@@ -239,9 +240,9 @@ def smooth_ladder(scene_path, thetas, ladder, reference_nx, quiet, tool, body2_e
         out = dict(theta=theta, geometry=geometry, nx=nx, status=row["status"])
         if results is not None:
             l2, h1 = body2_errors(tool_errors(tool, ref, folder))
-            measure = results[volume_key]
+            measure = results["measures"]
             out.update(h=results["h"], dofs=results["dofs"], l2_body2=l2, h1_body2=h1,
-                       **{f"{volume_key[:-1]}_rel_err": measure["body2"] / measure["body2_exact"] - 1},
+                       **{f"{measure_name}_rel_err": measure["body2"] / measure["body2_exact"] - 1},
                        stabilization=results["cut"]["stabilization"], dropped=results["cut"]["dropped_body2"],
                        newton_iterations=results["newton"]["iterations"], wall_s=row["wall_s"],
                        peak_rss_mb=results.get("peak_rss_mb"))
@@ -263,10 +264,10 @@ def smooth_problems():
     and the held ring's ladder NX = 10..160 against its curved NX = 320 reference for
     every theta, both geometries: results/curved_patch.csv, results/curved_smooth.csv,
     results/curved_smooth_rates.csv, plots/curved_smooth.png."""
-    patch_test(CLAMPED_DISK, PATCH_LADDER, "curved_patch.csv", "areas", QUIET)
+    patch_test(CLAMPED_DISK, PATCH_LADDER, "curved_patch.csv", "area", QUIET)
     table = smooth_ladder(HELD_RING, SMOOTH_THETAS, SMOOTH_LADDER, SMOOTH_REFERENCE_NX,
                           [*QUIET, "output.estimators=false"], "fd_error_2d.edp",
-                          lambda e: (e["l2_body2"], e["h1_body2"]), "areas", "curved_smooth.csv",
+                          lambda e: (e["l2_body2"], e["h1_body2"]), "area", "curved_smooth.csv",
                           "curved_smooth_rates.csv")
     plot_smooth(table, "held ring", "curved_smooth.png", "curved-smooth")
     print(f"wrote {RESULTS_DIR / 'curved_patch.csv'}, {RESULTS_DIR / 'curved_smooth.csv'}, "
@@ -278,9 +279,9 @@ def smooth_problems_3d():
     shell's ladder nx = 8, 12, 16 against its curved nx = 32 reference, both geometries:
     results/curved_patch_3d.csv, results/curved_smooth_3d.csv,
     results/curved_smooth_3d_rates.csv, plots/curved_smooth_3d.png."""
-    patch_test(CLAMPED_BALL, PATCH_LADDER_3D, "curved_patch_3d.csv", "volumes", QUIET_3D)
+    patch_test(CLAMPED_BALL, PATCH_LADDER_3D, "curved_patch_3d.csv", "volume", QUIET_3D)
     table = smooth_ladder(HELD_SHELL, (-1.0,), SMOOTH_LADDER_3D, SMOOTH_REFERENCE_NX_3D, QUIET_3D, "fd_error_3d.edp",
-                          lambda e: (e["body2"]["l2_rel"], e["body2"]["h1_rel"]), "volumes", "curved_smooth_3d.csv",
+                          lambda e: (e["body2"]["l2_rel"], e["body2"]["h1_rel"]), "volume", "curved_smooth_3d.csv",
                           "curved_smooth_3d_rates.csv")
     plot_smooth(table, "held shell", "curved_smooth_3d.png", "fd3d-curved-smooth")
     print(f"wrote {RESULTS_DIR / 'curved_patch_3d.csv'}, {RESULTS_DIR / 'curved_smooth_3d.csv'}, "

@@ -446,12 +446,12 @@ def estimator_row(folder, results, err, labels, step=None):
     young1, young2 = materials["body1"]["E"], materials["body2"]["E"]
     energy = np.hypot(young1 * abs_err["h1_body1"], young2 * abs_err["h1_body2"])
     if step is None:
-        est, dofs, areas = results["estimator"], results["dofs"], results["areas"]
+        est, dofs, areas = results["estimator"], results["dofs"], results["measures"]
         area1, area2 = areas["body1"], areas["body2"]
     else:
         steps = results["steps"]
         est = {k: steps[k][step] for k in ("eta", "eta1", "eta2", "eta3", "eta4", "eta5", "zeta")}
-        dofs, area1, area2 = steps["dofs"][step], steps["area_body1"][step], steps["area_body2"][step]
+        dofs, area1, area2 = steps["dofs"][step], steps["measure_body1"][step], steps["measure_body2"][step]
     return dict(labels, step=step if step is not None else 0, dofs=int(dofs),
                 **{k: est[k] for k in ("eta", "eta1", "eta2", "eta3", "eta4", "eta5", "zeta")},
                 h1_body1=err["h1_body1"], h1_body2=err["h1_body2"], l2_body1=err["l2_body1"],

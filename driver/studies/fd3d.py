@@ -257,7 +257,7 @@ def curved_convergence():
 
 def ball_geometry(results):
     """The discrete ball's volume (the solver's, on its cut geometry) and its relative error."""
-    v = results["volumes"]
+    v = results["measures"]
     return dict(volume_body1=v["body1"], volume_rel_err_body1=(v["body1"] - v["body1_exact"]) / v["body1_exact"])
 
 

@@ -31,7 +31,7 @@ def adaptive_study():
             continue
         est = results["estimator"]
         rows.append(dict(refinement="uniform", nx=nx, step=0, dofs=results["dofs"], elements=results["elements"],
-                         **{k: est[k] for k in COMPONENTS}, volume_ball=results["volumes"]["body1"],
+                         **{k: est[k] for k in COMPONENTS}, volume_ball=results["measures"]["body1"],
                          newton=results["newton"]["iterations"], cpu_s=results["steps"]["cpu_s"][0]))
     progress(n, n, f"adaptive P1 from nx = {UNIFORM_NX[0]}, {ADAPT_STEPS} steps")
     row, results, _ = run_point(BALL, [f"mesh.nx={UNIFORM_NX[0]}", f"adapt.steps={ADAPT_STEPS}", *QUIET])
@@ -41,7 +41,7 @@ def adaptive_study():
     for s in range(len(steps["dofs"])):
         rows.append(dict(refinement="adaptive", nx=UNIFORM_NX[0], step=s, dofs=steps["dofs"][s],
                          elements=steps["elements"][s], **{k: steps[k][s] for k in COMPONENTS},
-                         volume_ball=steps["volume_body1"][s], newton=steps["newton_iterations"][s],
+                         volume_ball=steps["measure_body1"][s], newton=steps["newton_iterations"][s],
                          cpu_s=steps["cpu_s"][s]))
     table = pd.DataFrame(rows)
     RESULTS_DIR.mkdir(exist_ok=True)

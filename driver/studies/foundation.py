@@ -32,7 +32,7 @@ def foundation_newton_table():
         row.update(theta=theta, degree=degree, gamma0=gamma0 if gamma0 else 1.0)
         if results is not None:
             box = results["contact"]["active_box"]
-            row.update(active_length=results["contact"]["active_length"],
+            row.update(active_length=results["contact"]["active_measure"],
                        contact_xmin=box[0], contact_xmax=box[2])
         rows.append(row)
     table = pd.DataFrame(rows)
@@ -41,7 +41,7 @@ def foundation_newton_table():
     table.drop(columns=["case"]).to_csv(path, index=False)
     print(f"wrote {path}")
     print(markdown_table(table[["theta", "degree", "gamma0", "status", "newton_iterations",
-                                "active_length", "contact_xmin", "contact_xmax"]]))
+                                "active_measure", "contact_xmin", "contact_xmax"]]))
     return table
 
 

@@ -51,7 +51,7 @@ def summary(results):
     c, cut = results["contact"], results["cut"]
     return dict(newton_iterations=results["newton"]["iterations"], dofs=results["dofs"],
                 max_penetration=c["max_penetration"], force_balance_error=c["force_balance_error"],
-                active_length=c["active_length"], max_pressure=c["max_pressure"],
+                active_length=c["active_measure"], max_pressure=c["max_pressure"],
                 centre_uy=results["probes"]["centre"][1],
                 min_cut_ratio=min(cut["min_ratio_body1"], cut["min_ratio_body2"]),
                 dropped=cut.get("dropped_body1", 0) + cut.get("dropped_body2", 0),

@@ -49,7 +49,7 @@ def scenes():
             raise DriverError(f"{case} failed: {row['message']}")
         row.update(force_y=results["contact"]["force_on_body1"][1],
                    balance_error=results["balance"]["balance_error"],
-                   area_body1=results["areas"]["body1"], area_body1_exact=results["areas"].get("body1_exact"))
+                   area_body1=results["measures"]["body1"], area_body1_exact=results["measures"].get("body1_exact"))
         rows.append(row)
         if case.endswith("hertz_cylinders.toml"):
             hertz.append(dict(hertz_row(results, folder), dofs=results["dofs"], wall_s=row["wall_s"],
