@@ -24,21 +24,20 @@ export FF_LOADPATH := /usr/lib/freefem++
 
 .PHONY: setup setup-system setup-python case test clean
 
-PLUGINS := freefem/plugins/contact_mumps.so freefem/plugins/curved_cells.so freefem/plugins/pressure_recovery.so
-# what each plugin links besides FreeFEM (MUMPS's sequential libraries, LAPACK)
-LIBS_contact_mumps := -I/usr/include/mumps_seq -ldmumps_seq -lmumps_common_seq -lmpiseq_seq -l:liblapack.so.3
-LIBS_curved_cells :=
-LIBS_pressure_recovery :=
+PLUGINS := $(patsubst %.cpp,%.so,$(wildcard freefem/plugins/*.cpp))
+# what each plugin links besides FreeFEM: freefem/plugins/link_flags.txt (driver/plugins.py,
+# which builds them for an installed package, reads the same file)
+PLUGIN_FLAGS = $(shell sed -n 's/^$(1):\(.*\)/\1/p' freefem/plugins/link_flags.txt)
 
 setup: setup-system setup-python $(PLUGINS)
 
 # A plugin is rebuilt when its source or the plugins' shared header changes (ff-c++ is
 # FreeFEM's plugin compiler), in a scratch folder, then moved in place: a run that has
 # the old one loaded keeps it.
-PLUGIN_HEADERS := freefem/plugins/script_powers.hpp
+PLUGIN_HEADERS := $(wildcard freefem/plugins/*.hpp) freefem/plugins/link_flags.txt
 freefem/plugins/%.so: freefem/plugins/%.cpp $(PLUGIN_HEADERS) | setup-system
 	@echo "building $@"
-	@tmp=$$(mktemp -d) && cp $< $$tmp/ && (cd $$tmp && ff-c++ $*.cpp -I$(CURDIR)/freefem/plugins $(LIBS_$*) > build.log 2>&1) \
+	@tmp=$$(mktemp -d) && cp $< $$tmp/ && (cd $$tmp && ff-c++ $*.cpp -I$(CURDIR)/freefem/plugins $(call PLUGIN_FLAGS,$*) > build.log 2>&1) \
 	  && mv $$tmp/$*.so $@ && rm -rf $$tmp \
 	  || { cat $$tmp/build.log; rm -rf $$tmp; echo "ERROR: could not build $@"; exit 1; }
 
@@ -74,7 +73,7 @@ setup-system:
 VENV := .venv
 VENV_PYTHON := $(VENV)/bin/python
 VENV_MARK := $(VENV)/.made-by-make-setup
-PYTHON_PACKAGES := numpy pandas matplotlib meshio pytest scipy dask distributed tqdm
+PYTHON_PACKAGES := numpy pandas matplotlib meshio pytest scipy dask distributed tqdm fdcontact
 PYTHON_STAMP := $(VENV)/.setup-python
 PYTHON_STAMP_WRITE = $(VENV_PYTHON) -c "import importlib.util as u, os, sys; \
 	specs = [u.find_spec(m) for m in sys.argv[3:]]; None in specs and sys.exit(1); \
@@ -83,7 +82,7 @@ PYTHON_STAMP_WRITE = $(VENV_PYTHON) -c "import importlib.util as u, os, sys; \
 SAME_PYTHON = { [ "$$(cat $(VENV_MARK) 2>/dev/null)" = "$$base" ] || [ "$$base" -ef $(VENV_PYTHON) ]; }
 setup-python: setup-system
 	@base="$$(command -v $(PYTHON))" || { echo "ERROR: no interpreter $(PYTHON) (set PYTHON=/path/to/python3)"; exit 1; }; \
-	if ! { [ $(PYTHON_STAMP) -nt requirements.txt ] && $(SAME_PYTHON) \
+	if ! { [ $(PYTHON_STAMP) -nt requirements.txt ] && [ $(PYTHON_STAMP) -nt pyproject.toml ] && $(SAME_PYTHON) \
 	        && ( while read -r f; do [ -e "$$f" ] || exit 1; done < $(PYTHON_STAMP) ); }; then \
 	  if ! { [ -f $(VENV_MARK) ] && $(SAME_PYTHON) && [ -x $(VENV_PYTHON) ]; }; then \
 	    if [ -e $(VENV) ] || [ -L $(VENV) ]; then \
@@ -95,15 +94,16 @@ setup-python: setup-system
 	      || { echo "ERROR: $(PYTHON) -m venv $(VENV) failed (Debian: apt-get install python3-venv)"; exit 1; }; \
 	  fi; \
 	  if ! $(PYTHON_STAMP_WRITE) 2>/dev/null; then \
-	    echo "installing Python packages from requirements.txt into $(VENV)"; \
-	    $(VENV_PYTHON) -m pip install -q -r requirements.txt && $(PYTHON_STAMP_WRITE) \
+	    echo "installing Python packages from requirements.txt and this package (editable) into $(VENV)"; \
+	    $(VENV_PYTHON) -m pip install -q -r requirements.txt && $(VENV_PYTHON) -m pip install -q --no-deps -e . \
+	      && $(PYTHON_STAMP_WRITE) \
 	      || { echo "ERROR: not every one of $(PYTHON_PACKAGES) can be found in $(VENV) after installing requirements.txt"; exit 1; }; \
 	  fi; \
 	fi
 
 # make case [CASE=cases/NAME.toml] [SET="mesh.nx=80 method.theta=1"]
 case: setup
-	$(VENV_PYTHON) -m driver run $(CASE) $(if $(strip $(SET)),--set "$(SET)")
+	$(VENV)/bin/fdcontact run $(CASE) $(if $(strip $(SET)),--set "$(SET)")
 
 test: setup
 	$(VENV_PYTHON) -m pytest -q tests

@@ -1,6 +1,6 @@
 import sys
 
-from driver.cli import main
+from .cli import main
 
 # Guarded: Dask's worker processes are started by multiprocessing's spawn, which
 # imports this module again (as __mp_main__) in each new process.

@@ -5,10 +5,10 @@ import re
 import signal
 import sys
 
-from driver import progress
-from driver.errors import DriverError
-from driver.runner import Interrupted
-from driver.studies import REGISTRY as STUDY_NAMES
+from . import progress
+from .errors import DriverError
+from .runner import Interrupted
+from .studies import REGISTRY as STUDY_NAMES
 
 # Commands whose parsers need nothing from driver.sweep: for these the sweep
 # commands' parsers (and with them driver.sweep) are not built.
@@ -16,8 +16,8 @@ OWN_COMMANDS = ("run", "scene-module", "study", "plot", "readme")
 
 
 def cmd_run(args):
-    from driver.runner import run_scene
-    from driver.scene import load_scene
+    from .runner import run_scene
+    from .scene import load_scene
 
     scene, module = load_scene(args.scene, args.set)
     steps = scene.get("adapt", {}).get("steps", 0)
@@ -67,7 +67,7 @@ def format_summary(scene, module, results, folder, wall):
 
 
 def cmd_scene_module(args):
-    from driver.scene import load_scene
+    from .scene import load_scene
 
     scene, module = load_scene(args.scene, args.set)
     if not hasattr(module, "scene_module"):
@@ -78,8 +78,8 @@ def cmd_scene_module(args):
 
 
 def cmd_study(args):
-    from driver import sweep
-    from driver.studies import study
+    from . import sweep
+    from .studies import study
 
     sweep.configure(workers=args.workers, scheduler=args.scheduler)
     for name in args.names:
@@ -89,7 +89,7 @@ def cmd_study(args):
 
 
 def cmd_plot(args):
-    from driver.plot import plot_run
+    from .plot import plot_run
 
     for path in plot_run(args.run, plane=args.plane, scale=args.scale):
         print(path)
@@ -97,7 +97,7 @@ def cmd_plot(args):
 
 
 def cmd_readme(args):
-    from driver.readme import update
+    from .readme import update
 
     update()
     return 0
@@ -131,7 +131,7 @@ def build_parser(argv=None):
     study.set_defaults(func=cmd_study)
     command = next((a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")), None)
     if command not in OWN_COMMANDS:
-        from driver.sweep import add_parser as add_sweep_parsers
+        from .sweep import add_parser as add_sweep_parsers
 
         add_sweep_parsers(sub)
     plot = sub.add_parser("plot", help="figures of a run folder (PNG files written into it, docs/outputs.md)")

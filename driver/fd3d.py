@@ -20,12 +20,12 @@ output.estimators; adapt.switch starts with r, holds a and no p.
 
 import numpy as np
 
-from driver.errors import SceneError
-from driver.fd2d import body_schema
-from driver.scene_module import check_two_bodies, summary_head, summary_lines  # noqa: F401  (the CLI's)
-from driver.scene_module import scene_module  # noqa: F401  (the runner calls module.scene_module)
-from driver.scene import SCENE_HEADER
-from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, Range, at_least, between, positive,
+from .errors import SceneError
+from .fd2d import body_schema
+from .scene_module import check_two_bodies, summary_head, summary_lines  # noqa: F401  (the CLI's)
+from .scene_module import scene_module  # noqa: F401  (the runner calls module.scene_module)
+from .scene import SCENE_HEADER
+from .schema import (ADAPT_SCHEMA, Field, FreeFemFlags, Range, at_least, between, positive,
                            put_declared, two_body_method_schema, two_body_solver_schema)
 
 STABILIZATIONS = ("auto", "none", "neighbour")

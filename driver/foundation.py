@@ -12,11 +12,11 @@ not zero; boundary labels exist on the mesh.
 
 from pathlib import Path
 
-from driver import gmsh_input
-from driver.errors import SceneError
-from driver.materials import young_from_lame
-from driver.scene import SCENE_HEADER
-from driver.schema import (ADAPT_SCHEMA, Field, FreeFemFlags, TableList, at_least, open_interval,
+from . import gmsh_input
+from .errors import SceneError
+from .materials import young_from_lame
+from .scene import SCENE_HEADER
+from .schema import (ADAPT_SCHEMA, Field, FreeFemFlags, TableList, at_least, open_interval,
                            positive, put_declared)
 
 BOX_LABELS = {"bottom": 1, "right": 2, "top": 3, "left": 4}
@@ -131,7 +131,7 @@ def check(scene, source):
         raise SceneError(f"{source}: key 'geometry.geo': required when geometry.kind = 'gmsh'")
     else:
         where = f"{source}: key 'geometry.geo'"
-        geo_path = gmsh_input.file_inside(Path(source).parent, geo["geo"], where, (".geo",))
+        geo_path = gmsh_input.file_inside(scene.get("_base_dir", Path(source).parent), geo["geo"], where, (".geo",))
         gmsh_input.check_mesh_sizes(gmsh_input.read_geo(geo_path, where), where)
         geo["geo_path"] = str(geo_path)
     folder = scene["reference"]["folder"]

@@ -21,8 +21,8 @@ import math
 
 import numpy as np
 
-from driver.errors import SceneError
-from driver.schema import finite_float, finite_floats
+from .errors import SceneError
+from .schema import finite_float, finite_floats
 
 PRIMITIVES = {
     2: ("disk", "ellipse", "box", "half_plane", "polygon", "gmsh", "expression"),

@@ -21,7 +21,7 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-from driver.errors import SceneError
+from .errors import SceneError
 
 MAX_GEO_BYTES = 1_000_000          # a hand-written outline is a few kB
 MAX_MSH_BYTES = 50_000_000

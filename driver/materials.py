@@ -5,7 +5,7 @@ may give either pair. A body is described by the scene table that holds its keys
 "E", "nu", "lambda", "mu" (unset ones are None).
 """
 
-from driver.errors import SceneError
+from .errors import SceneError
 
 
 def lame_from_young(E, nu):

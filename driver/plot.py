@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from driver.errors import DriverError
+from .errors import DriverError
 
 FIGURE_DPI = 130
 PRESSURE_LABEL = "contact pressure (positive in compression)"
@@ -148,9 +148,12 @@ def read_scene(folder):
 
 
 def unit_names(scene):
-    """Axis units: a scene is written in any consistent system (docs/scenes.md), so the labels
-    name the dimensions, length and stress, in the scene's units."""
-    return "length", "stress"
+    """Axis units: the scene's [scene] units (length, stress) when it states them; otherwise a
+    scene is written in any consistent system (docs/scenes.md) and the labels name the
+    dimensions, length and stress."""
+    units = (scene.get("scene") or {}).get("units") or {}
+    units = units if isinstance(units, dict) else {}
+    return str(units.get("length", "length")), str(units.get("stress", "stress"))
 
 
 def one_line(text):

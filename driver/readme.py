@@ -21,9 +21,9 @@ import re
 import numpy as np
 import pandas as pd
 
-from driver.runner import REPO
-from driver.schema import REQUIRED, TableList, flag_rules
-from driver.studies.common import markdown_table
+from .runner import REPO
+from .schema import REQUIRED, TableList, flag_rules
+from .studies.common import markdown_table
 
 RESULTS = REPO / "results"
 DOCS = REPO / "docs"
@@ -76,13 +76,13 @@ def aposteriori_adaptive_summary():
 
 
 def fd2d_rates():
-    from driver.studies.fd2d import rates_table
+    from .studies.fd2d import rates_table
 
     return markdown_table(rates_table(pd.read_csv(RESULTS / "fd2d_rates.csv")))
 
 
 def fd2d_dense_rates():
-    from driver.studies.fd2d import dense_rates_table
+    from .studies.fd2d import dense_rates_table
 
     return markdown_table(dense_rates_table(pd.read_csv(RESULTS / "fd2d_dense_rates.csv")))
 
@@ -99,7 +99,7 @@ def fd2d_dense_ladder():
 
 
 def fd2d_dense_rigid():
-    from driver.studies.fd2d import REFERENCE_NX
+    from .studies.fd2d import REFERENCE_NX
 
     t = dense_ladder_theta_minus1()
     return markdown_table(t[t.reference_nx == REFERENCE_NX][["nx", "l2_body1", "rigid_l2_body1", "l2_deformation_body1",
@@ -192,7 +192,7 @@ STAMPED_BENCH_TABLES = {
 
 def stamped_bench_table(name):
     """The make-bench table `name` (STAMPED_BENCH_TABLES) with its machine stamp."""
-    from driver.studies import bench
+    from .studies import bench
 
     t = pd.read_csv(RESULTS / f"{name}.csv")
     return markdown_table(getattr(bench, STAMPED_BENCH_TABLES[name])(t), digits=3) + machine_stamp(t)
@@ -217,7 +217,7 @@ def bench_error_tool():
 
 
 def bench_mumps():
-    from driver.studies.bench import mumps_summary
+    from .studies.bench import mumps_summary
 
     return markdown_table(mumps_summary(pd.read_csv(RESULTS / "bench_mumps.csv")), digits=3)
 
@@ -244,13 +244,13 @@ def bench_newton():
 
 
 def hard_cases():
-    from driver.studies.hard_cases import hard_cases_table
+    from .studies.hard_cases import hard_cases_table
 
     return hard_cases_table(pd.read_csv(RESULTS / "hard_cases.csv"))
 
 
 def hard_gamma_scaling():
-    from driver.studies.hard_cases import gamma_scaling_table
+    from .studies.hard_cases import gamma_scaling_table
 
     return gamma_scaling_table(pd.read_csv(RESULTS / "hard_gamma_scaling.csv"))
 
@@ -270,7 +270,7 @@ def gates():
 
 
 def hard_conditioning():
-    from driver.studies.hard_cases import conditioning_summary
+    from .studies.hard_cases import conditioning_summary
 
     return markdown_table(conditioning_summary(pd.read_csv(RESULTS / "hard_conditioning.csv")))
 
@@ -335,7 +335,7 @@ def fd3d_curved_convergence():
 
 
 def fd3d_adaptive():
-    from driver.studies.common import loglog_slope
+    from .studies.common import loglog_slope
 
     t = pd.read_csv(RESULTS / "fd3d_adaptive.csv")
     rows = []
@@ -367,13 +367,13 @@ def scenes_table():
 
 
 def pressure_recovery():
-    from driver.studies.pressure import recovery_table
+    from .studies.pressure import recovery_table
 
     return recovery_table(pd.read_csv(RESULTS / "pressure_recovery.csv"))
 
 
 def pressure_gamma0():
-    from driver.studies.pressure import gamma0_table
+    from .studies.pressure import gamma0_table
 
     return gamma0_table(pd.read_csv(RESULTS / "pressure_gamma0.csv"))
 
@@ -675,14 +675,14 @@ def schema_rows(schema, prefix=""):
 
 
 def script_schema(module):
-    from driver.scene import full_schema
+    from .scene import full_schema
 
     return full_schema(module)
 
 
 def scene_reference():
     """The text of docs/scenes.md."""
-    from driver.scene import script_modules
+    from .scene import script_modules
 
     modules = script_modules()
     parts = [INTRO]
@@ -729,7 +729,7 @@ SUPPORTS_TEXT = """## Supports, loads, probes
 
 
 def shapes_reference():
-    from driver.geometry import SHAPE_DOCS
+    from .geometry import SHAPE_DOCS
 
     lines = [SHAPES_INTRO, "| type | dimension | keys | level set |", "|---|---|---|---|"]
     for name, (dims, keys, meaning) in SHAPE_DOCS.items():
@@ -748,7 +748,7 @@ def flag_rules_path(script):
 
 def flag_rules_module(script):
     """The text of the script's flag_rules.idp: one argRule call per flag its schema declares."""
-    from driver.scene import script_modules
+    from .scene import script_modules
 
     module = script_modules()[script]
     source = module.__name__.replace(".", "/") + ".py"

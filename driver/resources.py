@@ -9,7 +9,7 @@ memory would otherwise crash FreeFEM after minutes), not to predict its cost.
 import math
 from pathlib import Path
 
-from driver.errors import SceneError
+from .errors import SceneError
 
 # DOFs per cell of the initial background mesh (both bodies, measured).
 DOFS_PER_CELL_2D = {1: 1.0, 2: 3.8}     # nx = 160: 23,776 (P1), 93,744 (P2) over nx^2 = 25,600

@@ -10,6 +10,7 @@ an --out may be.
 import ctypes
 import datetime
 import fcntl
+import functools
 import hashlib
 import json
 import os
@@ -18,27 +19,79 @@ import resource
 import shutil
 import signal
 import secrets
+import shlex
+import socket
 import subprocess
 import threading
 import time
 from pathlib import Path
 
-from driver.errors import DriverError, FreeFemError, NewtonError, SceneError
-from driver.resources import available_memory_mb, check_fits
+from .errors import DriverError, FreeFemError, NewtonError, SceneError
+from .resources import available_memory_mb, check_fits
 
-REPO = Path(__file__).resolve().parent.parent
+PACKAGE = Path(__file__).resolve().parent
+# The folder that holds freefem/ (the scripts FreeFEM runs from there) and cases/: the
+# checkout's root, or the installed package itself (pip install: package data).
+REPO = PACKAGE.parent if (PACKAGE.parent / "freefem").is_dir() else PACKAGE
+IN_CHECKOUT = REPO != PACKAGE
 FREEFEM_DIR = REPO / "freefem"
 TOOLS_DIR = FREEFEM_DIR / "tools"     # error measures and cross-checks (run_freefem_tool)
 PLUGIN_DIR = "/usr/lib/freefem++"
 
 
+# What the driver sets in FreeFEM's environment: Debian's binary looks for its plugins in
+# the wrong folder; one BLAS thread, as FreeFEM phases are timed with CPU clock() (see
+# freefem/lib/core/results.idp).
+FREEFEM_ENV = {"FF_LOADPATH": PLUGIN_DIR, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
+               "MKL_NUM_THREADS": "1"}
+
+
 def freefem_env():
-    env = dict(os.environ)
-    env["FF_LOADPATH"] = PLUGIN_DIR   # Debian's binary looks in the wrong folder
-    # One BLAS thread: FreeFEM phases are timed with CPU clock() (see freefem/lib/core/results.idp).
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        env[var] = "1"
-    return env
+    return dict(os.environ, **FREEFEM_ENV)
+
+
+def rerun_text(command):
+    """command.txt: the run's FreeFEM command as a shell line that runs it again
+    (`sh command.txt`): FreeFEM's working folder, the environment the driver set, the flags."""
+    env = " ".join(f"{k}={shlex.quote(v)}" for k, v in FREEFEM_ENV.items())
+    return (f"# the FreeFEM run of this folder; sh command.txt runs it again (into this folder)\n"
+            f"cd {shlex.quote(str(REPO))} && {env} {shlex.join(command)}\n")
+
+
+@functools.lru_cache(maxsize=None)
+def installed_versions():
+    """FreeFEM's and MUMPS's versions: Debian's package versions (dpkg-query), else unknown."""
+    query = shutil.which("dpkg-query")
+    out = {}
+    for key, package in (("freefem", "freefem++"), ("mumps", "libmumps-seq-dev")):
+        version = None
+        if query:
+            proc = subprocess.run([query, "-W", "-f", "${Version}", package], capture_output=True, text=True)
+            version = proc.stdout.strip() if proc.returncode == 0 and proc.stdout.strip() else None
+        out[key] = version
+    return out
+
+
+def git_commit():
+    """The checkout's commit (with -dirty when tracked files changed), or None outside a git checkout."""
+    git = shutil.which("git")
+    if not IN_CHECKOUT or git is None or not (REPO / ".git").exists():
+        return None
+    head = subprocess.run([git, "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True, text=True)
+    if head.returncode != 0:
+        return None
+    dirty = subprocess.run([git, "-C", str(REPO), "status", "--porcelain", "--untracked-files=no"],
+                           capture_output=True, text=True).stdout.strip()
+    return head.stdout.strip() + ("-dirty" if dirty else "")
+
+
+def provenance(command):
+    """What made a run (results.json "provenance")."""
+    from . import __version__
+
+    return {"package": "fdcontact", "version": __version__, "git_commit": git_commit(), **installed_versions(),
+            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "host": socket.gethostname(), "command": shlex.join(command)}
 
 
 def freefem_binary():
@@ -71,6 +124,11 @@ def freefem_message(log_text):
     keep = [line for line in log_text.splitlines()
             if re.search(r"error|INPUT ERROR|NEWTON FAILURE|Exec|exception|line number", line, re.I)]
     return "\n  ".join(keep[-8:]) if keep else "\n  ".join(log_text.strip().splitlines()[-8:])
+
+
+def default_runs_dir():
+    """runs/ of the checkout; for an installed package, runs/ in the working folder."""
+    return REPO / "runs" if IN_CHECKOUT else Path.cwd() / "runs"
 
 
 def run_id(scene, args):
@@ -293,11 +351,14 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
     is left as it was. FreeFEM runs within the scene's limits (time, memory) and dies
     with the driver.
     """
-    runs_dir = Path(runs_dir or REPO / "runs").resolve()
+    runs_dir = Path(runs_dir or default_runs_dir()).resolve()
     script = Path(script) if script else FREEFEM_DIR / f"{scene['scene']['script']}.edp"
     if not script.is_file():
         raise SceneError(f"{scene['_source']}: FreeFEM script not found: {script}")
     binary = freefem_binary()
+    from .plugins import ensure_plugins
+
+    ensure_plugins()
     probe_args = module.freefem_args(scene)
     if out_dir:
         final = resolve_out(out_dir)
@@ -325,7 +386,7 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
         # FreeFEM's output is block-buffered on a pipe: line-buffer it for progress.
         stdbuf = shutil.which("stdbuf")
         launch = [stdbuf, "-oL", "-eL"] + command if stdbuf else command
-        (staging / "command.txt").write_text(" ".join(command) + "\n")
+        (staging / "command.txt").write_text(rerun_text(command))
         start = time.perf_counter()
         with open(staging / "freefem.log", "w") as log:
             proc = subprocess.Popen(launch, cwd=REPO, env=freefem_env(), stdout=subprocess.PIPE,
@@ -344,7 +405,12 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
         results = check_outcome(proc.returncode, staging, scene["scene"]["name"])
         results["wall_s"] = wall
         results["peak_rss_mb"] = guard.peak_mb
+        published = [arg.replace(str(staging), str(final)) for arg in command]   # the run.edp, -outdir
+        results["provenance"] = provenance(published)
+        if scene["scene"].get("units"):
+            results["units"] = scene["scene"]["units"]
         (staging / "results.json").write_text(json.dumps(results, indent=1))
+        (staging / "command.txt").write_text(rerun_text(published))
         (staging / "driver.pid").unlink()
         publish(staging, final)
         (final / LOCK).unlink()

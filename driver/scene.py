@@ -5,12 +5,14 @@ a module here with its schema and its mapping to FreeFEM command-line flags.
 """
 
 import copy
+import json
+import math
 import re
 import tomllib
 from pathlib import Path
 
-from driver.errors import SceneError
-from driver.schema import Field, described, positive, validate
+from .errors import SceneError
+from .schema import Field, described, positive, validate
 
 SAFE_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}")
 
@@ -31,7 +33,24 @@ SCENE_HEADER = {
     "script": Field("str", doc="FreeFEM top-level script (without .edp) that solves the scene: fd_contact_2d, "
                                "fd_contact_3d or contact_foundation_2d"),
     "description": Field("str", default="", doc="free text, kept in scene.json"),
+    "units": Field("tree", default={}, doc="the scene's units, for labels only: { length = \"mm\", force = "
+                                          "\"N\", stress = \"MPa\" } (any consistent system; echoed in results.json "
+                                          "and used by the plots' axes)"),
 }
+UNIT_KEYS = ("length", "force", "stress")
+
+
+def check_units(units, source):
+    """The [scene] units table: names of at most 20 printable characters for length, force, stress."""
+    if not isinstance(units, dict):
+        raise SceneError(f"{source}: key 'scene.units': expected a table {{ length = \"m\", ... }}")
+    for key, value in units.items():
+        if key not in UNIT_KEYS:
+            raise SceneError(f"{source}: key 'scene.units.{key}': unknown (known: {', '.join(UNIT_KEYS)})")
+        if not isinstance(value, str) or not 0 < len(value) <= 20 or not value.isprintable():
+            raise SceneError(f"{source}: key 'scene.units.{key}': a unit name of 1-20 printable characters, "
+                             f"got {str(value)[:30]!r}")
+    return units
 
 
 # What a run may take (the driver stops a run beyond them: exit 2). Not sent to FreeFEM.
@@ -53,7 +72,7 @@ def full_schema(module):
 
 def script_modules():
     # Imported here so that each script module can import this one.
-    from driver import fd2d, fd3d, foundation
+    from . import fd2d, fd3d, foundation
 
     return {"contact_foundation_2d": foundation, "fd_contact_2d": fd2d, "fd_contact_3d": fd3d}
 
@@ -149,22 +168,65 @@ def parse_toml(text, source):
 
 
 def load_scene(path, overrides=()):
-    """Read, override and validate a scene; return (scene dict, script module)."""
+    """Read, override and validate a scene file; return (scene dict, script module)."""
     path = Path(path)
     source = str(path)
-    text = read_text_file(path, "scene file")
-    data = parse_toml(text, source)
+    data = parse_toml(read_text_file(path, "scene file"), source)
+    return load_scene_data(data, source, path.parent, overrides)
+
+
+def load_scene_data(data, source, base_dir, overrides=()):
+    """Override and validate a scene given as tables (source: how errors name it; base_dir:
+    the folder its files, e.g. a gmsh shape's, are read from); (scene dict, script module)."""
+    if not isinstance(data, dict):
+        raise SceneError(f"{source}: a scene is a table of tables, got {type(data).__name__}")
     data = copy.deepcopy(data)
     for text_override in overrides:
         keys, value = parse_override(text_override)
         apply_override(data, keys, value, source)
     header = validate(data.get("scene", {}), SCENE_HEADER, source, "scene.")
+    check_units(header["units"], source)
     modules = script_modules()
     if header["script"] not in modules:
         known = ", ".join(sorted(modules))
         raise SceneError(f"{source}: key 'scene.script': unknown script {header['script']!r} (known: {known})")
     module = modules[header["script"]]
     scene = validate(data, full_schema(module), source)
+    scene["_base_dir"] = Path(base_dir)
     module.check(scene, source)
     scene["_source"] = source
     return scene, module
+
+
+def toml_literal(value):
+    """A value as a TOML literal that reads back to the same value (tables inline)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "nan"
+        if math.isinf(value):
+            return "inf" if value > 0 else "-inf"
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, list):
+        return "[" + ", ".join(toml_literal(v) for v in value) + "]"
+    if isinstance(value, dict):      # an inline table: a shape, a hold, a load
+        return "{ " + ", ".join(f"{json.dumps(k)} = {toml_literal(v)}" for k, v in value.items()) + " }"
+    raise SceneError(f"value {value!r}: not a TOML value")
+
+
+def toml_text(data):
+    """A scene's tables as TOML text: each top-level table a [section] of key = literal lines
+    (nested tables and arrays of tables inline)."""
+    lines = []
+    for section, table in data.items():
+        if not isinstance(table, dict):
+            lines.append(f"{json.dumps(section)} = {toml_literal(table)}")
+            continue
+        lines.append(f"\n[{json.dumps(section)}]")
+        lines += [f"{json.dumps(key)} = {toml_literal(value)}" for key, value in table.items()]
+    return "\n".join(lines).lstrip() + "\n"

@@ -14,11 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from driver import gmsh_input
-from driver.errors import SceneError
-from driver.materials import body_lame
-from driver.schema import finite_floats
-from driver.geometry import (MAX_POLYGON_EDGES, Boolean, Disk, HalfSpace, fmt, placed_measure, read_shape,
+from . import gmsh_input
+from .errors import SceneError
+from .materials import body_lame
+from .schema import finite_floats
+from .geometry import (MAX_POLYGON_EDGES, Boolean, Disk, HalfSpace, fmt, placed_measure, read_shape,
                              sample_grid)
 
 FACES = {"ymin": 1, "xmax": 2, "ymax": 3, "xmin": 4, "zmin": 5, "zmax": 6}
@@ -368,7 +368,7 @@ def check_two_bodies(scene, source, dim, legacy_shapes, legacy_keys):
                          f"({geo[vertical + 'min']}, {geo[vertical + 'max']})")
     legacy_supports(scene, dim)
     legacy_probe(scene)
-    bodies = Bodies(scene, dim, source, Path(source).parent)
+    bodies = Bodies(scene, dim, source, scene.get("_base_dir", Path(source).parent))
     try:
         text = bodies.module_text(scene["scene"]["name"])
     except SceneError as exc:

@@ -5,7 +5,7 @@ Every problem is reported as one SceneError naming the file and the dotted key.
 
 import math
 
-from driver.errors import SceneError
+from .errors import SceneError
 
 REQUIRED = object()
 INT_LIMIT = 2**31 - 1   # the largest integer magnitude a flag takes (core/args.idp, argInt)

@@ -43,17 +43,17 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from driver.errors import DriverError, SceneError
-from driver.progress import bar as progress_bar
-from driver.runner import REPO
+from .errors import DriverError, SceneError
+from .progress import bar as progress_bar
+from .runner import PACKAGE, REPO
+from .scene import toml_literal
 
 RESULTS_DIR = REPO / "results"
 SWEEPS_DIR = REPO / "runs" / "sweeps"
 RETRY_ON_RESUME = {"KilledWorker", "TaskError"}     # infrastructure failures, not results
 DEFAULT_MAX_RETRIES = 2        # a point may take its worker down this many times, then KilledWorker
 # Sources whose change changes a run's result: their digest is part of every key.
-CODE_FILES = ("driver/runner.py", "driver/scene.py", "driver/schema.py", "driver/materials.py",
-              "driver/fd2d.py", "driver/fd3d.py", "driver/foundation.py", "driver/studies/common.py")
+CODE_MODULES = ("runner", "scene", "schema", "materials", "fd2d", "fd3d", "foundation", "studies.common")
 
 SWEEP_KEYS = {"name", "scene", "set", "description"}
 DEBUG_KEYS = {"sleep_s", "crash_points"}
@@ -96,44 +96,32 @@ def code_digest(extra=()):
     shape a run (read once per process: the code does not change while a sweep is
     being set up)."""
     digest = hashlib.sha256()
-    files = [path for pattern in ("*.edp", "*.idp", "*.cpp", "*.hpp") for path in sorted((REPO / "freefem").rglob(pattern))]
-    files += [REPO / name for name in (*CODE_FILES, *extra)]
-    for path in files:
+    files = [(path, path.relative_to(REPO)) for pattern in ("*.edp", "*.idp", "*.cpp", "*.hpp")
+             for path in sorted((REPO / "freefem").rglob(pattern))]
+    for module in (*CODE_MODULES, *extra):
+        path = module_file(module)
+        files.append((path, path.relative_to(PACKAGE.parent)))
+    for path, name in files:
         if path.is_file():
-            digest.update(str(path.relative_to(REPO)).encode() + b"\0" + path.read_bytes())
+            digest.update(str(name).encode() + b"\0" + path.read_bytes())
     return digest.hexdigest()[:16]
+
+
+def module_file(module):
+    """The source of one of the package's modules ("studies.common", or a full dotted name)."""
+    name = module if module.startswith(__package__ + ".") else f"{__package__}.{module}"
+    return PACKAGE / (name.split(".", 1)[1].replace(".", "/") + ".py")
 
 
 def canonical_overrides(overrides):
     """{dotted key: value} of a list of KEY=VALUE overrides (later ones win)."""
-    from driver.scene import parse_override
+    from .scene import parse_override
 
     out = {}
     for text in overrides:
         keys, value = parse_override(text)
         out[".".join(keys)] = value
     return dict(sorted(out.items()))
-
-
-def toml_literal(value):
-    """A value as the TOML literal that --set parses back to the same value (tables inline)."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        if math.isnan(value):
-            return "nan"
-        if math.isinf(value):
-            return "inf" if value > 0 else "-inf"
-        return repr(value)
-    if isinstance(value, str):
-        return json.dumps(value)
-    if isinstance(value, list):
-        return "[" + ", ".join(toml_literal(v) for v in value) + "]"
-    if isinstance(value, dict):      # an inline table: a shape, a hold, a load
-        return "{ " + ", ".join(f"{json.dumps(k)} = {toml_literal(v)}" for k, v in value.items()) + " }"
-    raise SceneError(f"value {value!r}: not a TOML value")
 
 
 def portable(path):
@@ -154,7 +142,7 @@ def scene_point(scene, overrides, runs_dir, labels, index=0, debug=None):
     """A point that runs `scene` with `overrides` (the `python -m driver run` task)."""
     scene = Path(scene)
     sha = file_digest(scene)
-    return Point(labels=labels, fn="driver.sweep:scene_task",
+    return Point(labels=labels, fn=f"{__name__}:scene_task",
                  args=(dict(portable(scene), sha256=sha), list(overrides), portable(runs_dir)),
                  key={"task": "scene", "scene_sha256": sha, "overrides": canonical_overrides(overrides),
                       "code": code_digest()},
@@ -167,7 +155,7 @@ def task_point(fn, args, labels, scene, overrides, extra=None, index=0):
     module = fn.split(":")[0]
     key = {"task": fn, "scene_sha256": file_digest(scene), "overrides": canonical_overrides(overrides),
            "labels": labels, "extra": extra or {},
-           "code": code_digest(extra=(module.replace(".", "/") + ".py",))}
+           "code": code_digest(extra=(module,))}
     return Point(labels=labels, fn=fn, args=tuple(args), key=key, index=index)
 
 
@@ -230,7 +218,7 @@ def value_identity(value):
 
 def load_sweep(path):
     """Read and expand a sweep file; every point is validated as a scene before anything runs."""
-    from driver.scene import load_scene, parse_toml, read_text_file, safe_name
+    from .scene import load_scene, parse_toml, read_text_file, safe_name
 
     path = Path(path)
     source = str(path)
@@ -319,7 +307,7 @@ def points_of(sweep, sweep_dir):
 
 def scene_task(scene_ref, overrides, runs_ref):
     """Run one scene with overrides; a row of the run's scalar results."""
-    from driver.studies.common import run_point
+    from .studies.common import run_point
 
     scene = resolve(scene_ref)
     if not scene.is_file() or file_digest(scene) != scene_ref["sha256"]:
@@ -562,7 +550,7 @@ def run_points(points, name, workers=None, scheduler=None, sweep_dir=None, table
 def sweep_lock(sweep_dir, name):
     """One sweep process per sweep folder (a second one would run every point again); the
     lock dies with its process. Staging folders left by killed points become NAME.failed."""
-    from driver.runner import retire_stale_siblings
+    from .runner import retire_stale_siblings
 
     sweep_dir.mkdir(parents=True, exist_ok=True)
     fd = os.open(sweep_dir / ".sweep-lock", os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)

@@ -52,4 +52,4 @@ REGISTRY = {
 def study(name):
     """The function that runs study `name`."""
     module, function = REGISTRY[name]
-    return getattr(importlib.import_module(f"driver.studies.{module}"), function)
+    return getattr(importlib.import_module(f".{module}", __name__), function)

@@ -35,10 +35,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from driver.errors import DriverError
-from driver.runner import REPO, freefem_binary, freefem_env, parse_json_file
-from driver.studies.fd2d import DISK, P1_GEOMETRY, QUIET, errors_against, reference
-from driver.studies.common import loglog_slope, markdown_table, progress, RESULTS_DIR, run_point, save_figure
+from ..errors import DriverError
+from ..runner import REPO, freefem_binary, freefem_env, parse_json_file
+from .fd2d import DISK, P1_GEOMETRY, QUIET, errors_against, reference
+from .common import loglog_slope, markdown_table, progress, RESULTS_DIR, run_point, save_figure
 
 PHASES = ("geometry", "assembly", "newton_contact_assembly", "newton_factor_solve", "estimators", "output")
 LADDER = (10, 20, 40, 80, 160)
@@ -911,9 +911,9 @@ GRADED_FLAGS = ("-grade_h", "-grade_radius", "-grade_slope", "-grade_x", "-grade
 def graded_reference_flags():
     """fd3d-study's reference mesh and Newton settings, as the driver's flags for its scene
     (driver.fd3d.freefem_args), restricted to those both versions read."""
-    from driver import fd3d as scenes3d
-    from driver.scene import load_scene
-    from driver.studies import fd3d
+    from .. import fd3d as scenes3d
+    from ..scene import load_scene
+    from . import fd3d
 
     scene, _ = load_scene(fd3d.BALL, fd3d.reference_settings())
     pairs = scenes3d.freefem_args(scene).pairs()
@@ -922,7 +922,7 @@ def graded_reference_flags():
 
 def bench3d_graded():
     """make bench: the graded P2 reference solve, previous version against current."""
-    from driver.studies import fd3d
+    from . import fd3d
 
     flags = graded_reference_flags()
     versions = {version: (tree, [*flags, *extra]) for version, (tree, extra) in BENCH3D_GRADED_VERSIONS.items()}
@@ -944,7 +944,7 @@ def error_tool_runs():
     """freefem/tools/fd_error_3d.edp of each version on the same P2 runs (current
     tree, saved) against the graded 3D reference (computed once if missing, about an
     hour: driver/studies/fd3d.py), each version in turn within each repeat."""
-    from driver.studies.fd3d import reference as fd3d_reference
+    from .fd3d import reference as fd3d_reference
 
     ref = fd3d_reference()
     rows = []

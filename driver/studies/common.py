@@ -6,10 +6,10 @@ from pathlib import Path
 
 import numpy as np
 
-from driver.errors import DriverError, SceneError
-from driver.progress import run_started, write
-from driver.runner import REPO, run_freefem_tool, run_scene
-from driver.scene import load_scene
+from ..errors import DriverError, SceneError
+from ..progress import run_started, write
+from ..runner import REPO, run_freefem_tool, run_scene
+from ..scene import load_scene
 
 RESULTS_DIR = REPO / "results"
 PLOTS_DIR = REPO / "plots"

@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from driver.errors import DriverError
-from driver.runner import REPO, run_command, run_freefem_tool
-from driver.studies.common import (cached_reference, loglog_slope, markdown_table, progress, RESULTS_DIR, run_point,
+from ..errors import DriverError
+from ..runner import REPO, run_command, run_freefem_tool
+from .common import (cached_reference, loglog_slope, markdown_table, progress, RESULTS_DIR, run_point,
                                    save_figure, saved_reference, tool_errors)
-from driver.sweep import file_digest, run_points, task_point
+from ..sweep import file_digest, run_points, task_point
 
 DISK = REPO / "cases" / "disk_on_slab.toml"
 REFERENCE_NX = int(os.environ.get("FD2D_REFERENCE_NX", "320"))
@@ -85,7 +85,7 @@ def run_with_errors_points(ref, grid):
     """run_with_errors as sweep points (Dask, resumable): grid = [(overrides, labels), ...].
     The key covers the reference's results.json, so a new reference means new points."""
     extra = {"reference": file_digest(Path(ref) / "results.json")}
-    return [task_point("driver.studies.fd2d:run_with_errors", (str(ref), overrides, labels), labels, DISK,
+    return [task_point(f"{__name__}:run_with_errors", (str(ref), overrides, labels), labels, DISK,
                        [*overrides, "output.save_solution=true", *QUIET], extra=extra, index=i)
             for i, (overrides, labels) in enumerate(grid)]
 

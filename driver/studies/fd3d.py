@@ -13,11 +13,11 @@ import os
 import numpy as np
 import pandas as pd
 
-from driver.errors import DriverError, SceneError
-from driver.studies.fd2d import rates_of
-from driver.runner import REPO, parse_json_file, run_scene
-from driver.scene import load_scene
-from driver.studies.common import (cached_reference, loglog_slope, markdown_table, progress, RESULTS_DIR, save_figure,
+from ..errors import DriverError, SceneError
+from .fd2d import rates_of
+from ..runner import REPO, parse_json_file, run_scene
+from ..scene import load_scene
+from .common import (cached_reference, loglog_slope, markdown_table, progress, RESULTS_DIR, save_figure,
                                    tool_errors)
 
 BALL = REPO / "cases" / "ball_on_slab.toml"

@@ -8,8 +8,8 @@ import os
 
 import pandas as pd
 
-from driver.runner import REPO
-from driver.studies.common import loglog_slope, markdown_table, progress, RESULTS_DIR, run_point, save_figure
+from ..runner import REPO
+from .common import loglog_slope, markdown_table, progress, RESULTS_DIR, run_point, save_figure
 
 BALL = REPO / "cases" / "ball_on_slab.toml"
 QUIET = ["output.vtu=false", "output.csv=false"]

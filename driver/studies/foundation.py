@@ -9,10 +9,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from driver.errors import DriverError
-from driver.runner import REPO, run_scene
-from driver.scene import load_scene
-from driver.studies.common import (cached_reference, loglog_slope, markdown_table, progress, RESULTS_DIR, run_point,
+from ..errors import DriverError
+from ..runner import REPO, run_scene
+from ..scene import load_scene
+from .common import (cached_reference, loglog_slope, markdown_table, progress, RESULTS_DIR, run_point,
                                    save_figure)
 
 

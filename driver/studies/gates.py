@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from driver.runner import REPO
-from driver.scene import load_scene
-from driver.studies.common import RESULTS_DIR, progress, run_point
+from ..runner import REPO
+from ..scene import load_scene
+from .common import RESULTS_DIR, progress, run_point
 
 KEEP = ["solver.allow_implausible=true", "solver.allow_unbalanced=true"]
 

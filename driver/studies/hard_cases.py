@@ -9,9 +9,9 @@ hard-conditioning -> results/hard_conditioning.csv, plots/conditioning.png
 
 import pandas as pd
 
-from driver.errors import DriverError
-from driver.runner import REPO
-from driver.studies.common import markdown_table, progress, RESULTS_DIR, run_point, save_figure
+from ..errors import DriverError
+from ..runner import REPO
+from .common import markdown_table, progress, RESULTS_DIR, run_point, save_figure
 
 HARD = REPO / "cases" / "hard"
 # Measured on the P1 cut geometry (results/hard_*.csv), which the study pins with a
@@ -59,14 +59,14 @@ def summary(results):
 
 
 def hard_reference():
-    from driver.studies.fd2d import reference
+    from .fd2d import reference
 
     return reference(HARD_REFERENCE_NX, "p1")
 
 
 def run_with_errors(ref, case, overrides):
     """(row, results): a saved run of a hard scene and its relative errors against ref."""
-    from driver.studies.fd2d import errors_against
+    from .fd2d import errors_against
 
     row, results, folder = run_point(case, [*overrides, "output.save_solution=true", *QUIET])
     if results is None:

@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from driver.errors import DriverError
-from driver.studies.common import markdown_table, progress, RESULTS_DIR, run_point, save_figure
-from driver.studies.fd2d import DISK, FITTED_H, REFERENCE_NX, errors_against, fitted_reference, reference
+from ..errors import DriverError
+from .common import markdown_table, progress, RESULTS_DIR, run_point, save_figure
+from .fd2d import DISK, FITTED_H, REFERENCE_NX, errors_against, fitted_reference, reference
 
 TARGET_NX = 160
 LADDER = (40, 80, 160)

@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pandas as pd
 
-from driver.errors import DriverError
-from driver.studies.common import RESULTS_DIR, progress, run_point
+from ..errors import DriverError
+from .common import RESULTS_DIR, progress, run_point
 
 SCENES = ["cases/disk_on_slab.toml", "cases/disk_on_tilted_slab.toml", "cases/hertz_cylinders.toml",
           "cases/punch.toml", "cases/ellipse_on_arch.toml", "cases/ring_on_slab.toml", "cases/cam_on_slab.toml"]
