@@ -143,11 +143,10 @@ class Run:
         for name in ("body1", "body2"):
             mesh = meshio.vtu.read(self.folder / self.results.get("outputs", {}).get(f"vtu_{name}", f"{name}.vtu"))
             if inside:
-                phi = mesh.point_data["phi"]
-                cells = [meshio.CellBlock(block.type, block.data[np.all(phi[block.data] <= 0, axis=1)])
-                         for block in mesh.cells]
-                keep = {key: [values[np.all(phi[block.data] <= 0, axis=1)]
-                              for values, block in zip(blocks, mesh.cells)]
+                phi = np.asarray(mesh.point_data["phi"]).reshape(-1)
+                masks = [np.all(phi[block.data] <= 0, axis=1) for block in mesh.cells]
+                cells = [meshio.CellBlock(block.type, block.data[mask]) for block, mask in zip(mesh.cells, masks)]
+                keep = {key: [np.asarray(values)[mask] for values, mask in zip(blocks, masks)]
                         for key, blocks in mesh.cell_data.items()}
                 mesh = meshio.Mesh(mesh.points, cells, point_data=mesh.point_data, cell_data=keep)
             out[name] = mesh

@@ -222,11 +222,10 @@ def toml_literal(value):
 def toml_text(data):
     """A scene's tables as TOML text: each top-level table a [section] of key = literal lines
     (nested tables and arrays of tables inline)."""
-    lines = []
+    lines = [f"{json.dumps(key)} = {toml_literal(value)}" for key, value in data.items()
+             if not isinstance(value, dict)]          # top-level values ([[probe]]) before any table
     for section, table in data.items():
-        if not isinstance(table, dict):
-            lines.append(f"{json.dumps(section)} = {toml_literal(table)}")
-            continue
-        lines.append(f"\n[{json.dumps(section)}]")
-        lines += [f"{json.dumps(key)} = {toml_literal(value)}" for key, value in table.items()]
+        if isinstance(table, dict):
+            lines.append(f"\n[{json.dumps(section)}]")
+            lines += [f"{json.dumps(key)} = {toml_literal(value)}" for key, value in table.items()]
     return "\n".join(lines).lstrip() + "\n"

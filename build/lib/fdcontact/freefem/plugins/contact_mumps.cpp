@@ -1,0 +1,530 @@
+// contact_mumps: one sequential MUMPS instance kept across the Newton steps of a
+// contact solve, for FreeFEM scripts.
+//
+// Why not FreeFEM's MUMPS_seq: every set(K, solver = sparsesolver) starts a new
+// MUMPS instance, which orders and analyses the matrix again, and MUMPS's options
+// cannot be reached from a script. The
+// Newton matrices of one solve often share their sparsity pattern (the contact
+// terms move inside a fixed coupling): this plugin keeps the analysis while the
+// pattern stays the same and refactorizes numerically only, and it returns MUMPS's
+// error code to the script instead of aborting the process.
+//
+// Script interface (one instance per process; the matrix is copied, so the script
+// may change or free it after the call):
+//   int contactMumpsFactor(matrix K, int reuse)
+//   int contactMumpsFactor(matrix A, matrix B, int reuse)
+//       factorize K, or K = A + B (square, stored in full; an empty B adds nothing). reuse != 0: numeric
+//       factorization only when K has the pattern of the last analysis, analysis
+//       and factorization otherwise; reuse = 0: analysis every time (what
+//       MUMPS_seq does).
+//       Returns MUMPS's INFOG(1): 0 on success, < 0 on failure (MUMPS's error code;
+//       the factorization is then released; -1001: K not square, stored as a half,
+//       or A and B of different sizes; -1002: an empty matrix), > 0 a warning.
+//   int contactMumpsSolve(real[int] x, real[int] b)
+//       x = K^-1 b with the last factorization; returns INFOG(1) (-1000 when there is
+//       no factorization or the sizes differ).
+//   int contactMumpsLowRank(matrix PtT, matrix P, real[int] d, int maxNew)
+//       solve from now on with K = Kf + PtT diag(d) P instead of the factorized Kf
+//       (PtT: n x nq, P: nq x n, d: one entry per point, 0 where the point's term is
+//       the factorized one): the Newton's change of active set, of rank r = the
+//       points with d != 0. Woodbury's identity with the capacitance matrix
+//       C = diag(1/d) + P K_f^-1 PtT on those points (dense, r x r, LAPACK's LU):
+//       x = Kf^-1 (b - PtT_S C^-1 P_S Kf^-1 b), two solves with the factors. The
+//       columns P Kf^-1 PtT e_q are computed once per factorization (a sparse
+//       right-hand side per point, solved in blocks) and kept for later steps.
+//       Returns the number of columns it had to compute (>= 0); -1004 when that
+//       would exceed maxNew (nothing done: the caller refactorizes); -1005 when C is
+//       singular; -1000 / -1001 as below. All of d zero turns the correction off.
+//   int contactMumpsOutOfCore(string dir)
+//       "": factors in memory (the default); else the next factorizations write their
+//       factors to files in dir (MUMPS's out-of-core mode, ICNTL(22) = 1, prefix
+//       mumps_factors), which MUMPS deletes when the instance is released. Returns 0,
+//       or -1006 when dir is longer than MUMPS accepts (255 bytes).
+//   int contactMumpsOrdering(int mode)
+//       the fill-reducing ordering of the next analyses: 0 automatic (below), 1 AMD,
+//       2 nested dissection (Scotch). Returns 0, or -1007 for another mode.
+//   int contactMumpsThreads(int n)
+//       the threads of the BLAS under MUMPS's dense kernels (OpenBLAS's
+//       openblas_set_num_threads, process-wide): n >= 1. Returns the count in force
+//       afterwards (1 with Debian's serial OpenBLAS, whatever n), or -1008 when n < 1
+//       or the BLAS loaded is not OpenBLAS.
+//   int contactMumpsStats(real[int] s)
+//       s (resized to 15) = analyses, numeric factorizations, solves, entries in the
+//       factors (INFOG(29)), operations of the last elimination (RINFOG(3)), the
+//       last factorization's peak memory in MB (INFOG(22)), the size n of the last
+//       matrix, INFOG(1) of the last call, CPU seconds spent in MUMPS's analyses,
+//       numeric factorizations and solves, the low-rank columns computed and their
+//       CPU seconds (counts and seconds: process totals), the ordering of the last
+//       analysis (MUMPS's INFOG(7): 0 AMD, 3 Scotch), and the operations per matrix
+//       entry AMD predicted in the last automatic choice (0 without one).
+//   int contactMumpsRelease()
+//       frees the instance (the next factorization analyses again).
+//
+// The automatic ordering. Nested dissection (Scotch) makes sparser factors than
+// approximate minimum degree (AMD) on all but the smallest contact systems (0.45 to
+// 0.88 of AMD's operations), but its analysis costs 3 to 7.5 times AMD's, more than
+// the numeric factorization of the 2D default scene (analysis 0.18 s against 0.02 s
+// with AMD, factorization 0.14 s, at 24k DOFs). The automatic mode analyses with AMD
+// first and keeps it unless AMD's predicted elimination operations per matrix entry
+// (RINFOG(1) / nnz) exceed kNestedDissectionPays, where it analyses again with
+// Scotch: AMD is faster up to about 1250 per entry, the two are within 10 % from
+// 2500 to 7700, and Scotch is faster from 8700 on (make bench, bench-ordering:
+// results/bench_ordering.csv, the disk on slab and the ball on slab). Debian's
+// Scotch orders on one thread per core unless
+// SCOTCH_PTHREAD_NUMBER says otherwise: the scripts set it to 1
+// (freefem/lib/core/sparse_solver.idp) for reproducible orderings.
+//
+// Build: make setup (the Makefile's rule for freefem/plugins/contact_mumps.so,
+// FreeFEM's ff-c++ against Debian's libmumps-seq-dev).
+
+#include <iostream>
+#include <ctime>
+#include <vector>
+#include <algorithm>
+#include <cstring>
+#include <string>
+#include <dlfcn.h>
+#include "ff++.hpp"
+#include "AFunction_ext.hpp"
+#include "mumps_seq/mpi.h"
+#include "dmumps_c.h"
+
+extern "C" {
+void dgetrf_(int *m, int *n, double *a, int *lda, int *ipiv, int *info);
+void dgetrs_(char *trans, int *n, int *nrhs, double *a, int *lda, int *ipiv, double *b, int *ldb, int *info);
+}
+
+namespace {
+
+const int kJobInit = -1, kJobEnd = -2, kJobAnalyse = 1, kJobFactor = 2, kJobSolve = 3;
+const int kHostWorks = 1, kUseCommWorld = -987654;
+const long kNoFactorization = -1000, kNotSquare = -1001, kNoMatrix = -1002, kTooManyColumns = -1004,
+           kSingularCapacitance = -1005, kDirectoryTooLong = -1006, kBadOrdering = -1007,
+           kNoThreadControl = -1008;
+const int kOrderingAuto = 0, kOrderingAmd = 1, kOrderingNested = 2;
+const int kIcntlAmd = 0, kIcntlScotch = 3;   // ICNTL(7) values
+const double kNestedDissectionPays = 6000;   // AMD's predicted operations per matrix entry (see above)
+const int kColumnBlock = 32;   // right-hand sides per MUMPS solve of the low-rank columns
+
+// M.CSR(), its row pointers M.p over entries in row order (columns increasing within
+// a row), with the entries put in that order by a counting sort first: CSR() then only
+// builds the pointers, and leaves the arrays and the state its own sort would
+// ((row, column) pairs are unique: one such order), so FreeFEM's later products with
+// M sum in the same order. CSR() alone sorts all entries with a heap sort,
+// O(nnz log nnz) with scattered memory accesses, which on the Newton matrices costs
+// about as much as MUMPS's numeric factorization; this is a counting sort on rows and
+// a sort of each row's few columns, O(nnz).
+static void rowPointers(HashMatrix<int, double> &M) {
+    typedef HashMatrix<int, double> HM;
+    if (M.state == HM::sorted_ij) { M.CSR(); return; }
+    const size_t nnz = M.nnz;
+    const int n = M.n, base = M.fortran;
+    std::vector<size_t> rowStart(n + 1, 0);
+    for (size_t k = 0; k < nnz; ++k) ++rowStart[M.i[k] - base + 1];
+    for (int r = 0; r < n; ++r) rowStart[r + 1] += rowStart[r];
+    std::vector<size_t> order(nnz), next(rowStart.begin(), rowStart.end() - 1);
+    for (size_t k = 0; k < nnz; ++k) order[next[M.i[k] - base]++] = k;
+    const int *col = M.j;
+    for (int r = 0; r < n; ++r)
+        std::sort(order.begin() + rowStart[r], order.begin() + rowStart[r + 1],
+                  [col](size_t a, size_t b) { return col[a] < col[b]; });
+    {
+        std::vector<int> cols(nnz);
+        for (size_t k = 0; k < nnz; ++k) cols[k] = M.j[order[k]];
+        std::copy(cols.begin(), cols.end(), M.j);
+    }
+    {
+        std::vector<double> vals(nnz);
+        for (size_t k = 0; k < nnz; ++k) vals[k] = M.aij[order[k]];
+        std::copy(vals.begin(), vals.end(), M.aij);
+    }
+    for (int r = 0; r < n; ++r)
+        for (size_t k = rowStart[r]; k < rowStart[r + 1]; ++k) M.i[k] = r + base;
+    M.ReHash();
+    M.state = HM::sorted_ij;
+    M.CSR();
+}
+
+struct ContactMumps {
+    DMUMPS_STRUC_C id;
+    bool started = false, factorized = false;
+    std::vector<int> irn, jcn;       // the analysed pattern, 1-based, row by row
+    std::vector<int> rowsNext, colsNext;   // the pattern being loaded
+    std::vector<double> values;
+    long analyses = 0, factorizations = 0, solves = 0, lastInfo = 0, columnsSolved = 0;
+    int orderingMode = kOrderingAuto;
+    double amdOperationsPerEntry = 0;   // of the last automatic choice
+    double analysisSeconds = 0, factorSeconds = 0, solveSeconds = 0, columnSeconds = 0;   // CPU, MUMPS calls only
+
+    // Low-rank correction (contactMumpsLowRank): the kept columns g_q = P Kf^-1 PtT e_q
+    // (columnOf[q] indexes columns), and the correction in force: its points S, the
+    // LU of C, P's rows and PtT's columns on S.
+    std::string outOfCoreDir;   // "" in core
+    std::vector<int> columnOf;
+    std::vector<std::vector<double> > columns;
+    std::vector<int> corrPoints, corrPivots;
+    std::vector<double> corrLu;
+    std::vector<int> corrRowStart, corrRowCol;   // P_S as CSR
+    std::vector<double> corrRowVal;
+    std::vector<int> corrUpRow, corrUpPoint;     // PtT_S as triplets (row, position in S, value)
+    std::vector<double> corrUpVal;
+
+    void dropCorrection() {
+        corrPoints.clear(); corrPivots.clear(); corrLu.clear();
+        corrRowStart.clear(); corrRowCol.clear(); corrRowVal.clear();
+        corrUpRow.clear(); corrUpPoint.clear(); corrUpVal.clear();
+    }
+    void dropColumns() { columnOf.clear(); columns.clear(); dropCorrection(); }
+
+    int &icntl(int i) { return id.icntl[i - 1]; }
+    int infog(int i) const { return id.infog[i - 1]; }
+    // MUMPS reports entry counts beyond the int range as minus millions.
+    double count(int i) const { return infog(i) >= 0 ? infog(i) : -1e6 * infog(i); }
+
+    // One MUMPS job; returns its CPU seconds (the process's: MUMPS runs on this thread).
+    double call(int job) {
+        quiet();
+        id.job = job;
+        const std::clock_t t0 = std::clock();
+        dmumps_c(&id);
+        lastInfo = infog(1);
+        return double(std::clock() - t0) / CLOCKS_PER_SEC;
+    }
+
+    void start() {
+        if (started) return;
+        id.job = kJobInit;
+        id.par = kHostWorks;
+        id.sym = 0;
+        id.comm_fortran = kUseCommWorld;
+        dmumps_c(&id);
+        quiet();
+        started = true;
+    }
+    // Errors only, on stdout (ICNTL(4) = 1): the scripts report the code themselves;
+    // with FreeFEM's -v 4 or more, MUMPS's statistics and timers too (as MUMPS_seq).
+    void quiet() {
+        const bool talk = verbosity > 3;
+        icntl(1) = 6; icntl(2) = talk ? 6 : 0; icntl(3) = talk ? 6 : 0; icntl(4) = talk ? 2 : 1;
+    }
+    void release() {
+        if (started) {
+            id.job = kJobEnd;
+            dmumps_c(&id);
+        }
+        started = factorized = false;
+        irn.clear(); jcn.clear(); values.clear(); rowsNext.clear(); colsNext.clear();
+        dropColumns();
+    }
+    ~ContactMumps() { release(); }
+
+    // K = A + B (B may be absent) row by row, columns in increasing order, 1-based:
+    // the union of the two patterns, merged row by row (CSR() sorts each matrix by
+    // row, then column). True when the pattern is the analysed one. Summing here
+    // spares the script a FreeFEM matrix sum, which hashes every entry.
+    bool load(HashMatrix<int, double> &A, HashMatrix<int, double> *B) {
+        rowPointers(A);
+        if (B) rowPointers(*B);
+        const int n = A.n;
+        rowsNext.clear(); colsNext.clear(); values.clear();
+        const size_t reserve = A.nnz + (B ? B->nnz : 0);
+        rowsNext.reserve(reserve); colsNext.reserve(reserve); values.reserve(reserve);
+        for (int i = 0; i < n; ++i) {
+            int ka = A.p[i], kb = B ? B->p[i] : 0;
+            const int ea = A.p[i + 1], eb = B ? B->p[i + 1] : 0;
+            while (ka < ea || kb < eb) {
+                int col;
+                double v;
+                if (kb >= eb || (ka < ea && A.j[ka] < B->j[kb])) { col = A.j[ka]; v = A.aij[ka++]; }
+                else if (ka >= ea || B->j[kb] < A.j[ka]) { col = B->j[kb]; v = B->aij[kb++]; }
+                else { col = A.j[ka]; v = A.aij[ka++] + B->aij[kb++]; }
+                rowsNext.push_back(i + 1);
+                colsNext.push_back(col + 1);
+                values.push_back(v);
+            }
+        }
+        const bool same = started && id.n == n && rowsNext == irn && colsNext == jcn;
+        if (!same) { irn.swap(rowsNext); jcn.swap(colsNext); }
+        return same;
+    }
+
+    // MUMPS's analysis with the ordering of orderingMode (see the top of the file).
+    long analyse() {
+        icntl(7) = orderingMode == kOrderingNested ? kIcntlScotch : kIcntlAmd;
+        analysisSeconds += call(kJobAnalyse);
+        if (lastInfo < 0 || orderingMode != kOrderingAuto) return lastInfo;
+        amdOperationsPerEntry = id.rinfog[0] / double(id.nnz);
+        if (amdOperationsPerEntry <= kNestedDissectionPays) return lastInfo;
+        icntl(7) = kIcntlScotch;
+        analysisSeconds += call(kJobAnalyse);
+        return lastInfo;
+    }
+
+    long factor(HashMatrix<int, double> &A, HashMatrix<int, double> *B, bool reuse) {
+        if (A.n != A.m || A.half) return lastInfo = kNotSquare;
+        if (B && (B->n != A.n || B->m != A.m || B->half)) return lastInfo = kNotSquare;
+        start();
+        dropColumns();
+        bool same = load(A, B) && reuse;
+        id.n = A.n;
+        id.nnz = (MUMPS_INT8)irn.size();
+        id.irn = irn.data();
+        id.jcn = jcn.data();
+        id.a = values.data();
+        icntl(5) = 0;    // assembled matrix
+        icntl(18) = 0;   // centralized on the host
+        icntl(22) = outOfCoreDir.empty() ? 0 : 1;
+        if (!outOfCoreDir.empty()) {
+            std::strncpy(id.ooc_tmpdir, outOfCoreDir.c_str(), sizeof(id.ooc_tmpdir) - 1);
+            std::strncpy(id.ooc_prefix, "mumps_factors", sizeof(id.ooc_prefix) - 1);
+        }
+        if (!same || !factorized) {
+            if (analyse() < 0) { release(); return lastInfo; }
+            ++analyses;
+        }
+        factorSeconds += call(kJobFactor);
+        if (lastInfo < 0) { release(); return lastInfo; }
+        ++factorizations;
+        factorized = true;
+        return lastInfo;
+    }
+
+    // x = Kf^-1 x in place (one right-hand side).
+    long solveInPlace(double *x) {
+        id.nrhs = 1;
+        id.lrhs = id.n;
+        id.rhs = x;
+        icntl(9) = 1;
+        icntl(20) = 0;
+        solveSeconds += call(kJobSolve);
+        id.rhs = 0;
+        if (lastInfo >= 0) ++solves;
+        return lastInfo;
+    }
+
+    long solve(KN<double> &x, const KN<double> &b) {
+        if (!factorized || b.N() != id.n) return lastInfo = kNoFactorization;
+        x.resize(b.N());
+        for (int i = 0; i < id.n; ++i) x[i] = b[i];
+        if (solveInPlace((double *)x) < 0 || corrPoints.empty()) return lastInfo;
+        // Woodbury: w = C^-1 P_S y, then x = Kf^-1 (b - PtT_S w)
+        int r = (int)corrPoints.size(), one = 1, info = 0;
+        std::vector<double> w(r, 0.);
+        for (int a = 0; a < r; ++a)
+            for (int k = corrRowStart[a]; k < corrRowStart[a + 1]; ++k) w[a] += corrRowVal[k] * x[corrRowCol[k]];
+        char notrans = 'N';
+        dgetrs_(&notrans, &r, &one, corrLu.data(), &r, corrPivots.data(), w.data(), &r, &info);
+        for (int i = 0; i < id.n; ++i) x[i] = b[i];
+        for (size_t k = 0; k < corrUpRow.size(); ++k) x[corrUpRow[k]] -= corrUpVal[k] * w[corrUpPoint[k]];
+        return solveInPlace((double *)x);
+    }
+
+    // The columns g_q = P Kf^-1 PtT e_q of the points in want (positions in the
+    // correction's points), by blocks of sparse right-hand sides (MUMPS exploits their
+    // sparsity in the forward substitution): PtT's columns are the correction's
+    // triplets, P is in row order.
+    long computeColumns(HashMatrix<int, double> &P, const std::vector<int> &want) {
+        const int n = id.n, nq = P.n;
+        std::vector<int> slot(corrPoints.size(), -1);
+        for (size_t c = 0; c < want.size(); ++c) slot[want[c]] = (int)c;
+        std::vector<std::vector<int> > rowsOf(want.size());
+        std::vector<std::vector<double> > valsOf(want.size());
+        for (size_t k = 0; k < corrUpRow.size(); ++k) {
+            const int c = slot[corrUpPoint[k]];
+            if (c >= 0) { rowsOf[c].push_back(corrUpRow[k] + 1); valsOf[c].push_back(corrUpVal[k]); }
+        }
+        for (size_t c0 = 0; c0 < want.size(); c0 += kColumnBlock) {
+            const int nb = (int)std::min<size_t>(kColumnBlock, want.size() - c0);
+            std::vector<int> ptr(nb + 1, 1), rows;
+            std::vector<double> vals, dense((size_t)n * nb, 0.);
+            for (int c = 0; c < nb; ++c) {
+                rows.insert(rows.end(), rowsOf[c0 + c].begin(), rowsOf[c0 + c].end());
+                vals.insert(vals.end(), valsOf[c0 + c].begin(), valsOf[c0 + c].end());
+                ptr[c + 1] = (int)rows.size() + 1;
+            }
+            if (rows.empty()) { rows.push_back(1); vals.push_back(0.); ptr[nb] = 2; }
+            id.nrhs = nb;
+            id.lrhs = n;
+            id.rhs = dense.data();
+            id.nz_rhs = (int)rows.size();
+            id.rhs_sparse = vals.data();
+            id.irhs_sparse = rows.data();
+            id.irhs_ptr = ptr.data();
+            icntl(9) = 1;
+            icntl(20) = 1;
+            columnSeconds += call(kJobSolve);
+            icntl(20) = 0;
+            id.rhs = 0; id.rhs_sparse = 0; id.irhs_sparse = 0; id.irhs_ptr = 0; id.nz_rhs = 0;
+            if (lastInfo < 0) return lastInfo;
+            for (int c = 0; c < nb; ++c) {
+                const double *z = dense.data() + (size_t)c * n;
+                std::vector<double> g(nq, 0.);
+                for (int i = 0; i < nq; ++i)
+                    for (int k = P.p[i]; k < P.p[i + 1]; ++k) g[i] += P.aij[k] * z[P.j[k]];
+                columnOf[corrPoints[want[c0 + c]]] = (int)columns.size();
+                columns.push_back(g);
+                ++columnsSolved;
+            }
+        }
+        return 0;
+    }
+
+    long lowRank(HashMatrix<int, double> &PtT, HashMatrix<int, double> &P, const KN<double> &d, long maxNew) {
+        if (!factorized) return lastInfo = kNoFactorization;
+        const int nq = P.n;
+        if (P.m != id.n || PtT.n != id.n || PtT.m != nq || d.N() != nq) return lastInfo = kNotSquare;
+        if ((int)columnOf.size() != nq) { columnOf.assign(nq, -1); columns.clear(); }
+        dropCorrection();
+        std::vector<int> want;   // positions in corrPoints of the points without a column
+        for (int q = 0; q < nq; ++q)
+            if (d[q] != 0.) {
+                if (columnOf[q] < 0) want.push_back((int)corrPoints.size());
+                corrPoints.push_back(q);
+            }
+        if ((long)want.size() > maxNew) { dropCorrection(); return kTooManyColumns; }
+        int r = (int)corrPoints.size(), info = 0;
+        if (r == 0) return 0;
+        // P's rows and PtT's columns on the correction's points, in one pass each
+        std::vector<int> position(nq, -1);
+        for (int a = 0; a < r; ++a) position[corrPoints[a]] = a;
+        rowPointers(P);
+        corrRowStart.assign(1, 0);
+        for (int a = 0; a < r; ++a) {
+            const int q = corrPoints[a];
+            for (int k = P.p[q]; k < P.p[q + 1]; ++k) { corrRowCol.push_back(P.j[k]); corrRowVal.push_back(P.aij[k]); }
+            corrRowStart.push_back((int)corrRowCol.size());
+        }
+        for (size_t k = 0; k < (size_t)PtT.nnz; ++k) {
+            const int a = position[PtT.j[k]];
+            if (a >= 0 && PtT.aij[k] != 0.) { corrUpRow.push_back(PtT.i[k]); corrUpPoint.push_back(a); corrUpVal.push_back(PtT.aij[k]); }
+        }
+        if (!want.empty() && computeColumns(P, want) < 0) { dropCorrection(); return lastInfo; }
+        corrLu.assign((size_t)r * r, 0.);
+        for (int b = 0; b < r; ++b) {
+            const std::vector<double> &g = columns[columnOf[corrPoints[b]]];
+            for (int a = 0; a < r; ++a) corrLu[a + (size_t)b * r] = g[corrPoints[a]];
+            corrLu[b + (size_t)b * r] += 1. / d[corrPoints[b]];
+        }
+        corrPivots.assign(r, 0);
+        dgetrf_(&r, &r, corrLu.data(), &r, corrPivots.data(), &info);
+        if (info != 0) { dropCorrection(); return kSingularCapacitance; }
+        return (long)want.size();
+    }
+};
+
+ContactMumps &instance() {
+    static ContactMumps mumps;
+    return mumps;
+}
+
+long contactMumpsFactor(Matrice_Creuse<double> *const &K, const long &reuse) {
+    HashMatrix<int, double> *hm = K ? K->pHM() : 0;
+    if (!hm) return instance().lastInfo = kNoMatrix;
+    return instance().factor(*hm, 0, reuse != 0);
+}
+
+long contactMumpsFactorSum(Matrice_Creuse<double> *const &A, Matrice_Creuse<double> *const &B,
+                           const long &reuse) {
+    HashMatrix<int, double> *ha = A ? A->pHM() : 0, *hb = B ? B->pHM() : 0;
+    if (!ha) return instance().lastInfo = kNoMatrix;
+    if (hb && hb->nnz == 0) hb = 0;    // e.g. no contact term yet: K = A
+    return instance().factor(*ha, hb, reuse != 0);
+}
+
+long contactMumpsSolve(KN<double> *const &x, KN<double> *const &b) {
+    return instance().solve(*x, *b);
+}
+
+long contactMumpsLowRank(Matrice_Creuse<double> *const &PtT, Matrice_Creuse<double> *const &P,
+                         KN<double> *const &d, const long &maxNew) {
+    HashMatrix<int, double> *ht = PtT ? PtT->pHM() : 0, *hp = P ? P->pHM() : 0;
+    if (!ht || !hp) return instance().lastInfo = kNoMatrix;
+    return instance().lowRank(*ht, *hp, *d, maxNew);
+}
+
+long contactMumpsOutOfCore(string *const &dir) {
+    ContactMumps &m = instance();
+    const std::string d = dir ? *dir : std::string();
+    if (d.size() >= sizeof(m.id.ooc_tmpdir)) return kDirectoryTooLong;
+    m.outOfCoreDir = d;
+    return 0;
+}
+
+long contactMumpsOrdering(const long &mode) {
+    if (mode != kOrderingAuto && mode != kOrderingAmd && mode != kOrderingNested) return kBadOrdering;
+    instance().orderingMode = (int)mode;
+    return 0;
+}
+
+// OpenBLAS's thread control, looked up at run time in the library MUMPS's LAPACK
+// already loaded, so that the plugin links no particular BLAS.
+long contactMumpsThreads(const long &n) {
+    if (n < 1) return kNoThreadControl;
+    void *blas = dlopen("libopenblas.so.0", RTLD_LAZY | RTLD_NOLOAD);
+    if (!blas) return kNoThreadControl;
+    typedef void (*SetThreads)(int);
+    typedef int (*GetThreads)();
+    SetThreads setThreads = (SetThreads)dlsym(blas, "openblas_set_num_threads");
+    GetThreads getThreads = (GetThreads)dlsym(blas, "openblas_get_num_threads");
+    long inForce = kNoThreadControl;
+    if (setThreads && getThreads) {
+        setThreads((int)n);
+        inForce = getThreads();
+    }
+    dlclose(blas);
+    return inForce;
+}
+
+long contactMumpsStats(KN<double> *const &s) {
+    ContactMumps &m = instance();
+    s->resize(15);
+    (*s)[0] = m.analyses;
+    (*s)[1] = m.factorizations;
+    (*s)[2] = m.solves;
+    (*s)[3] = m.started ? m.count(29) : 0.;
+    (*s)[4] = m.started ? m.id.rinfog[2] : 0.;
+    (*s)[5] = m.started ? (double)m.infog(22) : 0.;
+    (*s)[6] = m.started ? (double)m.id.n : 0.;
+    (*s)[7] = m.lastInfo;
+    (*s)[8] = m.analysisSeconds;
+    (*s)[9] = m.factorSeconds;
+    (*s)[10] = m.solveSeconds;
+    (*s)[11] = m.columnsSolved;
+    (*s)[12] = m.columnSeconds;
+    (*s)[13] = m.started ? (double)m.infog(7) : -1.;
+    (*s)[14] = m.amdOperationsPerEntry;
+    return 0;
+}
+
+long contactMumpsRelease() {
+    instance().release();
+    return 0;
+}
+
+// The sequential MUMPS library talks to a stub MPI that wants to be initialised.
+struct StubMpi {
+    StubMpi() { int argc = 0; char **argv = 0; MPI_Init(&argc, &argv); }
+    ~StubMpi() { MPI_Finalize(); }
+};
+
+}  // namespace
+
+static void Load_Init() {
+    static StubMpi mpi;
+    Global.Add("contactMumpsFactor", "(",
+               new OneOperator2_<long, Matrice_Creuse<double> *, long>(contactMumpsFactor));
+    Global.Add("contactMumpsFactor", "(",
+               new OneOperator3_<long, Matrice_Creuse<double> *, Matrice_Creuse<double> *, long>(
+                   contactMumpsFactorSum));
+    Global.Add("contactMumpsSolve", "(", new OneOperator2_<long, KN<double> *, KN<double> *>(contactMumpsSolve));
+    Global.Add("contactMumpsLowRank", "(",
+               new OneOperator4_<long, Matrice_Creuse<double> *, Matrice_Creuse<double> *, KN<double> *, long>(
+                   contactMumpsLowRank));
+    Global.Add("contactMumpsOutOfCore", "(", new OneOperator1_<long, string *>(contactMumpsOutOfCore));
+    Global.Add("contactMumpsOrdering", "(", new OneOperator1_<long, long>(contactMumpsOrdering));
+    Global.Add("contactMumpsThreads", "(", new OneOperator1_<long, long>(contactMumpsThreads));
+    Global.Add("contactMumpsStats", "(", new OneOperator1_<long, KN<double> *>(contactMumpsStats));
+    Global.Add("contactMumpsRelease", "(", new OneOperator0<long>(contactMumpsRelease));
+}
+
+LOADFUNC(Load_Init)

@@ -1,0 +1,680 @@
+// curved_cells: the quadrature of the 2D curved cut cells (docs/curved-geometry.md,
+// freefem/lib/fd2d/curved.idp, which describes the construction), and the pieces of
+// the cut elements' edges that the estimators integrate on, compiled.
+//
+// Why compiled: both are loops over cut cells and their edges with root searches on
+// the exact level set along lines. Interpreted, the construction cost more than the
+// rest of the cut geometry together on the default scene, and the edge pieces half
+// of the estimators (FreeFEM's interpreter also reads the process clock twice per
+// statement). Which cells are cut, the level set, the use of the rules and points
+// are the script's; this plugin only builds them.
+//
+// Script interface:
+//   int curvedCellRules(real[int] cells, real[int] rules, real[int] ratio,
+//                       real[int] inBody, real[int] volume, real[int] interface,
+//                       real phi)
+//   cells: 10 numbers per cut cell: its element number, then x0 x1 x2 y0 y1 y2 of its
+//       vertices and f0 f1 f2, the level set's vertex values (off zero);
+//   rules: the script's quadrature rules (core/line_rules.idp lsGaussLegendre,
+//       fd2d/levelset.idp lsTriangleRule7), concatenated: nS, nR, nG (the points in s
+//       and r of the volume map and on the interface piece), the nodes and weights of
+//       the three Gauss rules on [0, 1] (ts ws tr wr tg wg), then the barycentric
+//       coordinates a, b and weights w of the 7-point triangle rule;
+//   ratio, inBody: per element of the mesh; set for the cells' elements
+//       (|K cap {phi < 0}|/|K|, at most 1, and 1 where that part is not empty);
+//   volume, interface: resized to 4 n (n points): x of every point, then y, then
+//       weights, then element numbers;
+//   phi: the level set as an expression of x and y (the script's current point),
+//       evaluated at the points the construction asks for.
+//   Returns the number of (sub)cells done on the P1 cut (fallbacks), or -1 when the
+//   rules or the cells are not laid out as above.
+//
+//   int cutEdgePieces(mesh Th, real[int] phiV, real[int] segK, real[int] chBg,
+//                     real[int] faces, real[int] rule, int exact, real[int] points,
+//                     int[int] entryPoint, real[int] entryElement, real phi)
+//   the rule of fd2d/estimators.idp fdEstCutEdges: phiV the P1 level set's vertex
+//   values, segK the cut elements, chBg the R_rho element of every element, faces =
+//   [x0, x1, y0, y1] (the box), then by box-face label (7 each; 0 inside, 1..4 as
+//   square() labels the sides) 1 where the face is held strongly, the traction data
+//   x, the traction data y; rule = [nG, nodes, weights] (Gauss on [0, 1]); exact = 1
+//   to end crossed edges at the root of phi;
+//   points: resized to 10 nq (nq = nG per piece): x, y, weight, then per point the R_rho
+//       elements of its two sides, 1 on interior edges, the edge's normal (x, y),
+//       the face traction (x, y);
+//   entryPoint, entryElement: nG per (piece, element it is added to): the point and
+//       the element.
+//   Returns the number of pieces, or -1 when the arrays are not sized as above or an
+//   element of segK is not one of Th's.
+//
+//   int contactPointGeometry(real[int] px, real[int] py, real[int] pk, real[int] hK,
+//                            real[int] params, real[int] out, real phi)
+//   fd2d/contact.idp nitscheContactGeometry at the points (px, py) of elements pk
+//   (the closest point of {phi = 0}, see project below, and grad phi there):
+//   params = [gamma0, step, shiftIn], hK per element; out resized to 6 n: the gaps,
+//   gamma = gamma0 h_K, the normals (x, y) of phi at the projections, the projections
+//   moved by shiftIn h_K along -n (x, y). Returns n, or -1 when the arrays are not
+//   sized as above.
+//
+//   int levelSetNormals(real[int] px, real[int] py, real step, real[int] out, real phi)
+//   the unit normals grad phi/|grad phi| at the points (central differences of
+//   half-width step); out resized to 2 n: x, then y. Returns n, or -1 when px and py
+//   differ in size or step is not positive.
+#include "ff++.hpp"
+#include "script_powers.hpp"   // sq: x^2 as the script computes it, so the rules equal the
+                                 // interpreted construction's to the bit
+
+#include <cmath>
+#include <tuple>
+#include <utility>
+#include <vector>
+
+namespace {
+
+const int kDepthMax = 2;   // a failing cell is split into four, twice at most
+const double kCrossingShiftMax = 0.25;   // of an edge: exact against P1 crossing, beyond it a cell fails
+// The volume rule's area against the boundary's, relative to the (sub)cell: beyond
+// it the s rule is applied on panels, halved until each agrees with its halves to
+// this share of the cell times its length, at most kPanelDepthMax times.
+const double kVolumeRuleTol = 1e-7;
+const int kPanelDepthMax = 30;
+
+struct Points {
+    std::vector<double> x, y, w, k;
+    void add(double px, double py, double pw, double pk) {
+        x.push_back(px); y.push_back(py); w.push_back(pw); k.push_back(pk);
+    }
+    size_t size() const { return x.size(); }
+    void truncate(size_t n) { x.resize(n); y.resize(n); w.resize(n); k.resize(n); }
+    void copyTo(KN<double> &out) const {
+        long n = size();
+        out.resize(4 * n);
+        for (long i = 0; i < n; i++) {
+            out[i] = x[i]; out[n + i] = y[i]; out[2 * n + i] = w[i]; out[3 * n + i] = k[i];
+        }
+    }
+};
+
+// The level set as the script gave it: an expression of the current point.
+class LevelSet {
+  public:
+    LevelSet(Stack stack, Expression phi) : stack_(stack), phi_(phi), mp_(MeshPointStack(stack)) {}
+    double operator()(double x, double y) const {
+        mp_->set(x, y);
+        return GetAny<double>((*phi_)(stack_));
+    }
+
+  private:
+    Stack stack_;
+    Expression phi_;
+    MeshPoint *mp_;
+};
+
+// FreeFEM's plugin idiom, written once for the functions below. The script passes
+// arguments of the types Args... and, last, the level set (an expression of x and y).
+// The types are listed once, so overload resolution (typeargs) and conversion (the
+// constructor) cannot disagree. A call saves FreeFEM's current point, which the level
+// set moves, runs Derived::evaluate(stack, levelSet) and restores the point on every
+// return path.
+typedef KN<double> *Reals;   // a script's real[int]
+
+template <class Derived, class... Args>
+class LevelSetFunction : public E_F0mps {
+  public:
+    typedef long Result;
+    explicit LevelSetFunction(const basicAC_F0 &args) {
+        args.SetNameParam();
+        bind(args, std::index_sequence_for<Args...>());
+    }
+    static ArrayOfaType typeargs() { return ArrayOfaType(atype<Args>()..., atype<double>()); }
+    static E_F0 *f(const basicAC_F0 &args) { return new Derived(args); }
+
+    AnyType operator()(Stack stack) const {
+        MeshPoint *mp = MeshPointStack(stack), saved = *mp;
+        long result = static_cast<const Derived *>(this)->evaluate(stack, LevelSet(stack, phi_));
+        *mp = saved;
+        return result;
+    }
+
+  protected:
+    // Argument I, evaluated (its type is the I-th of Args).
+    template <size_t I>
+    std::tuple_element_t<I, std::tuple<Args...>> arg(Stack stack) const {
+        return GetAny<std::tuple_element_t<I, std::tuple<Args...>>>((*args_[I])(stack));
+    }
+
+  private:
+    template <size_t... I>
+    void bind(const basicAC_F0 &args, std::index_sequence<I...>) {
+        Expression bound[] = {to<Args>(args[I])...};
+        for (size_t i = 0; i < sizeof...(Args); i++) args_[i] = bound[i];
+        phi_ = to<double>(args[sizeof...(Args)]);
+    }
+    Expression args_[sizeof...(Args)], phi_;
+};
+
+// Root lam in [lo, hi] of sgn phi(X0 + lam D), from lam0: the rule of core/line_rules.idp
+// lineRootOf (secant steps, bisection whenever a step leaves the bracket); ok = 0 when
+// |f| fell neither below 1e-8 of the largest |f| seen nor below fTol.
+bool lineRoot(const LevelSet &phi, double x0, double y0, double dx, double dy, double sgn, double lo, double hi,
+              double lam0, double fTol, double &lam) {
+    auto along = [&](double l) { return sgn * phi(x0 + l * dx, y0 + l * dy); };
+    double bLo = lo, bHi = hi;
+    double x = lam0, f = along(x);
+    double fMax = fabs(f);
+    if (fabs(f) <= fTol) fMax = -1;   // the guess is a root (a straight interface)
+    if (f < 0) bLo = x; else bHi = x;
+    double xp = x + ((f < 0) ? 1e-4 : -1e-4) * (hi - lo);
+    if (fMax < 0) xp = x;
+    xp = std::min(std::max(xp, lo), hi);
+    double fp = f;
+    if (fMax >= 0) fp = along(xp);
+    fMax = std::max(fMax, fabs(fp));
+    if (fp < 0) bLo = std::max(bLo, xp); else bHi = std::min(bHi, xp);
+    if (fabs(fp) < fabs(f)) { std::swap(x, xp); std::swap(f, fp); }
+    for (int i = 0; i < 80 && f != 0 && fabs(f) > fTol * 1e-3; i++) {
+        double n = 0.5 * (bLo + bHi);
+        if (f != fp) n = x - f * (x - xp) / (f - fp);
+        if (!(n > bLo && n < bHi)) n = 0.5 * (bLo + bHi);
+        double fn = along(n);
+        fMax = std::max(fMax, fabs(fn));
+        if (fn < 0) bLo = n; else bHi = n;
+        xp = x; fp = f; x = n; f = fn;
+        if (fabs(x - xp) <= 1e-14 * (1. + fabs(x)) || bHi - bLo <= 1e-15 * (1. + fabs(x))) break;
+    }
+    lam = x;
+    return fabs(f) <= std::max(1e-8 * fMax, fTol);
+}
+
+// Largest lam with X + lam D in the triangle (o, a, b) (X in it).
+double exitParameter(double ox, double oy, double ax, double ay, double bx, double by, double X, double Y, double DX,
+                     double DY) {
+    double det = (ax - ox) * (by - oy) - (bx - ox) * (ay - oy);
+    double la = ((X - ox) * (by - oy) - (bx - ox) * (Y - oy)) / det;
+    double lb = ((ax - ox) * (Y - oy) - (X - ox) * (ay - oy)) / det;
+    double da = (DX * (by - oy) - (bx - ox) * DY) / det;
+    double db = ((ax - ox) * DY - DX * (ay - oy)) / det;
+    double lo = 1. - la - lb, dO = -da - db;
+    double lamMax = 1e30;
+    if (da < 0) lamMax = std::min(lamMax, -std::max(la, 0.) / da);
+    if (db < 0) lamMax = std::min(lamMax, -std::max(lb, 0.) / db);
+    if (dO < 0) lamMax = std::min(lamMax, -std::max(lo, 0.) / dO);
+    return lamMax;
+}
+
+// The script's rules: pointers into its concatenated array (see the interface above).
+struct Rules {
+    int nS, nR, nG;
+    const double *ts, *ws, *tr, *wr, *tg, *wg, *a7, *b7, *w7;
+
+    // false when `all` does not hold the layout of the interface above
+    bool read(const KN<double> &all) {
+        if (all.N() < 3) return false;
+        nS = lround(all[0]); nR = lround(all[1]); nG = lround(all[2]);
+        if (std::min(nS, std::min(nR, nG)) < 1 || all.N() != 3 + 2 * (nS + nR + nG) + 21) return false;
+        const double *at = &all[0] + 3;
+        ts = at; ws = (at += nS); tr = (at += nS); wr = (at += nR); tg = (at += nR); wg = (at += nG);
+        a7 = (at += nG); b7 = at + 7; w7 = at + 14;
+        return true;
+    }
+};
+
+// The odd vertex o of a cut (sub)triangle and the P1 crossings ta, tb on o-a and o-b
+// (fd2d/levelset.idp lsCrossing).
+void crossing(const double *f, int nNeg, int &o, int &a, int &b, double &ta, double &tb) {
+    if (nNeg == 1) o = (f[0] < 0) ? 0 : ((f[1] < 0) ? 1 : 2);
+    else o = (f[0] >= 0) ? 0 : ((f[1] >= 0) ? 1 : 2);
+    a = (o + 1) % 3;
+    b = (o + 2) % 3;
+    ta = f[o] / (f[o] - f[a]);
+    tb = f[o] / (f[o] - f[b]);
+}
+
+void wholeTriangle(const Rules &q, const double *X, const double *Y, double area, double k, Points &vol) {
+    for (int g = 0; g < 7; g++) {
+        double l1 = q.a7[g], l2 = q.b7[g], l0 = 1. - l1 - l2;
+        vol.add(l0 * X[0] + l1 * X[1] + l2 * X[2], l0 * Y[0] + l1 * Y[1] + l2 * Y[2], area * q.w7[g], k);
+    }
+}
+
+// grad phi by central differences of half-width step: the one gradient of the exact
+// level set (the interface's slopes, the projections, the normals).
+void gradient(const LevelSet &phi, double px, double py, double step, double &gx, double &gy) {
+    gx = (phi(px + step, py) - phi(px - step, py)) / (2. * step);
+    gy = (phi(px, py + step) - phi(px, py - step)) / (2. * step);
+}
+
+// One pass of the ruled map on a cut (sub)triangle: exact = the interface of phi,
+// else the P1 cut (rho = 1). Returns false (and writes nothing) where a root search
+// fails or the Jacobian changes sign.
+bool ruledMap(const LevelSet &phi, const Rules &q, const double *X, const double *Y, const double *F, int nNeg,
+              double subArea, double step, bool exact, double k, Points &vol, Points &itf) {
+    size_t nv0 = vol.size(), ni0 = itf.size();
+    int o, a, b;
+    double ta, tb;
+    crossing(F, nNeg, o, a, b, ta, tb);
+    double ox = X[o], oy = Y[o], ax = X[a], ay = Y[a], bx = X[b], by = Y[b];
+    double fTol = 1e-12 * std::max(fabs(F[0]), std::max(fabs(F[1]), fabs(F[2])));
+    double tA = ta, tB = tb;
+    bool ok = true;
+    if (exact) {
+        double sgn = (nNeg == 1) ? 1. : -1.;   // negative at o
+        bool okA = lineRoot(phi, ox, oy, ax - ox, ay - oy, sgn, 0., 1., ta, fTol, tA);
+        bool okB = lineRoot(phi, ox, oy, bx - ox, by - oy, sgn, 0., 1., tb, fTol, tB);
+        // An exact crossing far from the P1 one: the vertex values misread the cut (an
+        // edge nearly tangent to the interface, a vertex next to it), and the rays from
+        // this base all run along one edge. Left to the split into four.
+        ok = okA && okB && fabs(tA - ta) <= kCrossingShiftMax && fabs(tB - tb) <= kCrossingShiftMax;
+        // a vertex on the interface: crossings kept 1e-10 of the edge off the vertices
+        tA = std::min(std::max(tA, 1e-10), 1. - 1e-10);
+        tB = std::min(std::max(tB, 1e-10), 1. - 1e-10);
+    }
+    // base E0-E1 (the inside vertex o, or the inside edge a-b) and chord P0-P1
+    double e0x = ox, e0y = oy, e1x = ox, e1y = oy;
+    if (nNeg == 2) { e0x = ax; e0y = ay; e1x = bx; e1y = by; }
+    double p0x = ox + tA * (ax - ox), p0y = oy + tA * (ay - oy);
+    double p1x = ox + tB * (bx - ox), p1y = oy + tB * (by - oy);
+    double dEx = e1x - e0x, dEy = e1y - e0y;
+    double dQx = (p1x - p0x) - dEx, dQy = (p1y - p0y) - dEy;
+    // orientation of the P1 map at its centre (rho = 1, s = r = 1/2)
+    double qmx = p0x + 0.5 * (p1x - p0x) - e0x - 0.5 * dEx, qmy = p0y + 0.5 * (p1y - p0y) - e0y - 0.5 * dEy;
+    double detRef = (dEx * qmy - dEy * qmx) + 0.5 * (dQx * qmy - dQy * qmx);
+    // The volume points of the lines s in [s0, s1] (the s rule mapped there), and
+    // their area.
+    auto linesOn = [&](double s0, double s1, double &area) {
+        area = 0;
+        for (int js = 0; js < q.nS; js++) {
+            double s = s0 + (s1 - s0) * q.ts[js], ws = (s1 - s0) * q.ws[js];
+            double ex = e0x + s * dEx, ey = e0y + s * dEy;
+            double qx = p0x + s * (p1x - p0x) - ex, qy = p0y + s * (p1y - p0y) - ey;
+            double rho = 1.;
+            if (exact) {
+                double lamMax = exitParameter(ox, oy, ax, ay, bx, by, ex, ey, qx, qy);
+                bool okR = lineRoot(phi, ex, ey, qx, qy, 1., 0., lamMax, 1., fTol, rho);
+                if (!okR || rho <= 0) return false;
+            }
+            double cEq = dEx * qy - dEy * qx, cQq = dQx * qy - dQy * qx;
+            for (int jr = 0; jr < q.nR; jr++) {
+                double r = q.tr[jr], det = rho * cEq + r * sq(rho) * cQq;
+                if (det * detRef <= 0) return false;
+                double w = ws * q.wr[jr] * fabs(det);
+                vol.add(ex + r * rho * qx, ey + r * rho * qy, w, k);
+                area += w;
+            }
+        }
+        return true;
+    };
+    double areaLines = 0;   // the s rule on [0, 1]
+    ok = ok && linesOn(0., 1., areaLines);
+    // interface: the curve over the chord along its unit normal n (toward the outside)
+    double lx = p1x - p0x, ly = p1y - p0y, len = sqrt(sq(lx) + sq(ly));
+    double nx = -ly / len, ny = lx / len;
+    if (nx * qmx + ny * qmy < 0) { nx = -nx; ny = -ny; }
+    // a chord below 1e-6 of the cell (a vertex on the interface) is the interface to 1e-12 h
+    bool curvedChord = exact && len > 1e-6 * sqrt(2. * subArea);
+    double sigmaIntegral = 0;   // of sigma over s in [0, 1], by the interface's rule
+    for (int jg = 0; jg < q.nG && ok; jg++) {
+        double s = q.tg[jg];
+        double px = p0x + s * lx, py = p0y + s * ly;
+        double sig = 0., sp = 0.;
+        if (curvedChord) {
+            double fwd = exitParameter(ox, oy, ax, ay, bx, by, px, py, nx, ny);
+            double back = exitParameter(ox, oy, ax, ay, bx, by, px, py, -nx, -ny);
+            if (!lineRoot(phi, px, py, nx, ny, 1., -back, fwd, 0., fTol, sig)) { ok = false; break; }
+            double cx = px + sig * nx, cy = py + sig * ny;
+            double gx, gy;
+            gradient(phi, cx, cy, step, gx, gy);
+            double gn = gx * nx + gy * ny;
+            if (gn <= 0.1 * sqrt(sq(gx) + sq(gy))) { ok = false; break; }   // not a graph over the chord
+            sp = -(gx * lx + gy * ly) / gn;
+        }
+        sigmaIntegral += q.wg[jg] * sig;
+        itf.add(px + sig * nx, py + sig * ny, q.wg[jg] * sqrt(sq(len) + sq(sp)), k);
+    }
+    // The s rule's check. Lines that meet the interface at a shallow angle (an edge
+    // crossing it nearly tangentially) make rho vary fast near one end of the chord,
+    // and a fixed rule in s misjudges the cell: on an adapted mesh of the disk on slab
+    // one element's inside part came out 1.4e-3 too large, the disk 1.1e-6. The boundary
+    // gives the area independently, from the interface as a graph over the chord,
+    // which stays smooth there: the polygon base-chord plus len times the integral of
+    // sigma. Where the two disagree, the s rule is refined adaptively. With fewer than
+    // 3 interface points (contact_qp < 3) the boundary's area is rougher and more cells
+    // are refined (the disk at NX = 80: 6,624 volume points with contact_qp = 1, 3,912
+    // with 3); the panels' own test then sets the accuracy.
+    if (ok && curvedChord) {
+        double polygon = 0.5 * fabs((p0x - e0x) * (p1y - e0y) - (p1x - e0x) * (p0y - e0y)
+                                    + (p1x - e0x) * (e1y - e0y) - (e1x - e0x) * (p1y - e0y));
+        if (fabs(areaLines - (polygon + len * sigmaIntegral)) > kVolumeRuleTol * subArea) {
+            vol.truncate(nv0);
+            struct Panel { double s0, s1, area; int depth; };
+            std::vector<Panel> todo(1, Panel{0., 1., areaLines, 0});
+            while (!todo.empty() && ok) {
+                Panel p = todo.back();
+                todo.pop_back();
+                double m = 0.5 * (p.s0 + p.s1), aL = 0, aR = 0;
+                size_t mark = vol.size();
+                ok = linesOn(p.s0, m, aL) && linesOn(m, p.s1, aR);
+                if (!ok || fabs(aL + aR - p.area) <= kVolumeRuleTol * subArea * (p.s1 - p.s0)
+                    || p.depth >= kPanelDepthMax)
+                    continue;
+                vol.truncate(mark);
+                todo.push_back(Panel{m, p.s1, aR, p.depth + 1});
+                todo.push_back(Panel{p.s0, m, aL, p.depth + 1});
+            }
+        }
+    }
+    if (!ok) { vol.truncate(nv0); itf.truncate(ni0); }
+    return ok;
+}
+
+struct SubCell {
+    double X[3], Y[3], F[3];
+    int depth;
+};
+
+// The inside part of one cut element and its interface: the cell and, where it fails,
+// its four children (edge midpoints), down to kDepthMax; what still fails there is
+// done on its P1 cut (counted in fallbacks). Returns the element's area.
+double cutCell(const LevelSet &phi, const Rules &q, const double *cell, Points &vol, Points &itf, long &fallbacks) {
+    double k = cell[0];
+    const double *x = cell + 1, *y = cell + 4, *f = cell + 7;
+    double areaK = 0.5 * fabs((x[1] - x[0]) * (y[2] - y[0]) - (x[2] - x[0]) * (y[1] - y[0]));
+    double tiny = 1e-10 * sqrt(2. * areaK);   // as lsKeepOffZero: values within it count as outside
+    double step = 1e-4 * sqrt(2. * areaK);    // central differences: truncation and round-off ~1e-10
+    std::vector<SubCell> stack(1);
+    for (int j = 0; j < 3; j++) { stack[0].X[j] = x[j]; stack[0].Y[j] = y[j]; stack[0].F[j] = f[j]; }
+    stack[0].depth = 0;
+    while (!stack.empty()) {
+        SubCell c = stack.back();
+        stack.pop_back();
+        double X[6], Y[6], F[6];   // vertices 0..2, edge midpoints 3 (0-1), 4 (1-2), 5 (2-0)
+        for (int j = 0; j < 3; j++) { X[j] = c.X[j]; Y[j] = c.Y[j]; F[j] = c.F[j]; }
+        bool anomaly = false;
+        for (int j = 0; j < 3; j++) {
+            int j1 = (j + 1) % 3;
+            X[3 + j] = 0.5 * (X[j] + X[j1]);
+            Y[3 + j] = 0.5 * (Y[j] + Y[j1]);
+            double m = phi(X[3 + j], Y[3 + j]);
+            if (fabs(m) < tiny) m = tiny;
+            F[3 + j] = m;
+            if ((F[j] < 0) == (F[j1] < 0) && (m < 0) != (F[j] < 0)) anomaly = true;
+        }
+        int nNeg = (F[0] < 0) + (F[1] < 0) + (F[2] < 0);
+        double subArea = 0.5 * fabs((X[1] - X[0]) * (Y[2] - Y[0]) - (X[2] - X[0]) * (Y[1] - Y[0]));
+        bool done = false;
+        if (!anomaly && nNeg == 0) done = true;
+        if (!anomaly && nNeg == 3) { wholeTriangle(q, X, Y, subArea, k, vol); done = true; }
+        if (!anomaly && (nNeg == 1 || nNeg == 2)) {
+            done = ruledMap(phi, q, X, Y, F, nNeg, subArea, step, true, k, vol, itf);
+            if (!done && c.depth >= kDepthMax) {
+                fallbacks++;
+                done = ruledMap(phi, q, X, Y, F, nNeg, subArea, step, false, k, vol, itf);
+            }
+        }
+        if (done) continue;
+        if (c.depth < kDepthMax) {   // split into four; the values at the midpoints are known
+            static const int child[12] = {0, 3, 5, 3, 1, 4, 5, 4, 2, 3, 4, 5};
+            for (int ch = 0; ch < 4; ch++) {
+                SubCell s;
+                for (int j = 0; j < 3; j++) {
+                    int v = child[3 * ch + j];
+                    s.X[j] = X[v]; s.Y[j] = Y[v]; s.F[j] = F[v];
+                }
+                s.depth = c.depth + 1;
+                stack.push_back(s);
+            }
+        } else if (nNeg == 3) {   // deepest level, edge anomaly left: taken whole (P1)
+            fallbacks++;
+            wholeTriangle(q, X, Y, subArea, k, vol);
+        } else if (nNeg == 0) fallbacks++;   // deepest level, edge anomaly left: taken empty (P1)
+    }
+    return areaK;
+}
+
+class CurvedCellRules : public LevelSetFunction<CurvedCellRules, Reals, Reals, Reals, Reals, Reals, Reals> {
+  public:
+    using LevelSetFunction::LevelSetFunction;
+
+    long evaluate(Stack stack, const LevelSet &levelSet) const {
+        KN<double> &cellData = *arg<0>(stack);
+        KN<double> &ruleData = *arg<1>(stack);
+        KN<double> &ratioK = *arg<2>(stack);
+        KN<double> &inBodyK = *arg<3>(stack);
+        KN<double> &volumeOut = *arg<4>(stack);
+        KN<double> &interfaceOut = *arg<5>(stack);
+        Rules q;
+        if (!q.read(ruleData) || cellData.N() % 10 != 0) return -1L;
+        Points vol, itf;
+        long fallbacks = 0;
+        long nCells = cellData.N() / 10;
+        for (long c = 0; c < nCells; c++) {
+            const double *cell = &cellData[10 * c];
+            size_t nv0 = vol.size();
+            double areaK = cutCell(levelSet, q, cell, vol, itf, fallbacks);
+            double area = 0;
+            for (size_t v = nv0; v < vol.size(); v++) area += vol.w[v];
+            long k = lround(cell[0]);
+            ratioK[k] = std::min(area / areaK, 1.);
+            inBodyK[k] = (area > 0);
+        }
+        vol.copyTo(volumeOut);
+        itf.copyTo(interfaceOut);
+        return fallbacks;
+    }
+};
+
+// The estimators' cut-edge pieces (fd2d/estimators.idp fdEstCutEdges, which states
+// the rule): every edge of the cut elements restricted to the body, as one piece
+// shared by the elements it is added to, with its Gauss points and what each point
+// reads (the R_rho elements of its two sides, whether it is interior, the edge's
+// normal, the traction data of the box face it lies on).
+class CutEdgePieces
+    : public LevelSetFunction<CutEdgePieces, pmesh, Reals, Reals, Reals, Reals, Reals, long, Reals, KN<long> *, Reals> {
+  public:
+    using LevelSetFunction::LevelSetFunction;
+
+    long evaluate(Stack stack, const LevelSet &levelSet) const {
+        const Mesh &Th = *arg<0>(stack);
+        const KN<double> &phiBg = *arg<1>(stack);
+        const KN<double> &cut = *arg<2>(stack);
+        const KN<double> &chosen = *arg<3>(stack);
+        const KN<double> &faceData = *arg<4>(stack);
+        const KN<double> &gauss = *arg<5>(stack);
+        bool onExact = arg<6>(stack) != 0;
+        KN<double> &pointsOut = *arg<7>(stack);
+        KN<long> &entryPointOut = *arg<8>(stack);
+        KN<double> &entryElementOut = *arg<9>(stack);
+        if (gauss.N() < 1) return -1L;
+        int nG = lround(gauss[0]);
+        if (nG < 1 || gauss.N() != 1 + 2 * nG || phiBg.N() != Th.nv || chosen.N() != Th.nt || faceData.N() != 25)
+            return -1L;
+        const double *gt = &gauss[1], *gw = &gauss[1 + nG];
+        double x0 = faceData[0], x1 = faceData[1], y0 = faceData[2], y1 = faceData[3];
+        const double *heldFace = &faceData[4], *faceTx = &faceData[11], *faceTy = &faceData[18];
+        // box face of an edge (square() labels: 1 bottom, 2 right, 3 top, 4 left; 0 none)
+        auto boxFace = [&](double ax, double ay, double bx, double by) {
+            if (fabs(ay - y0) + fabs(by - y0) < 1e-10) return 1;
+            if (fabs(ax - x1) + fabs(bx - x1) < 1e-10) return 2;
+            if (fabs(ay - y1) + fabs(by - y1) < 1e-10) return 3;
+            if (fabs(ax - x0) + fabs(bx - x0) < 1e-10) return 4;
+            return 0;
+        };
+        for (long s = 0; s < cut.N(); s++)
+            if (!(cut[s] >= 0 && cut[s] < Th.nt)) return -1L;
+        std::vector<char> isCut(Th.nt, 0);
+        for (long s = 0; s < cut.N(); s++) isCut[lround(cut[s])] = 1;
+        std::vector<long> pieceOf(3 * Th.nt, -1);
+        // per piece: its inside and outside vertices, its ends, and what its points read
+        struct Piece { int iN, iP; double ax, ay, bx, by, sa, sb, inner, nx, ny, tx, ty; };
+        std::vector<Piece> pieces;
+        std::vector<long> entryP, entryK;
+        for (long s = 0; s < cut.N(); s++) {
+            int k = lround(cut[s]);
+            for (int e = 0; e < 3; e++) {
+                int ia = Th(k, (e + 1) % 3), ib = Th(k, (e + 2) % 3);
+                double fa = phiBg[ia], fb = phiBg[ib];
+                if (fa >= 0 && fb >= 0) continue;
+                int iN = (fa < 0) ? ia : ib, iP = (fa < 0) ? ib : ia;
+                int ee = e, kk = Th.ElementAdj(k, ee);
+                bool inner = (kk >= 0 && kk != k);
+                long piece = -1;
+                if (inner && isCut[kk])
+                    for (int f = 0; f < 3; f++) {
+                        long pf = pieceOf[3 * kk + f];
+                        if (pf >= 0 && pieces[pf].iN == iN && pieces[pf].iP == iP) piece = pf;
+                    }
+                if (piece < 0) {
+                    double fN = phiBg[iN], fP = phiBg[iP], t = 1.;
+                    double nX = Th(iN).x, nY = Th(iN).y, pX = Th(iP).x, pY = Th(iP).y;
+                    int face = inner ? 0 : boxFace(nX, nY, pX, pY);
+                    if (!inner && heldFace[face] > 0.5) continue;   // held strongly: exact
+                    if (fP >= 0) {
+                        t = fN / (fN - fP);
+                        double root;
+                        if (onExact && lineRoot(levelSet, nX, nY, pX - nX, pY - nY, 1., 0., 1., t,
+                                                1e-12 * std::max(-fN, fP), root))
+                            t = root;
+                    }
+                    double ex = pX - nX, ey = pY - nY, len = sqrt(sq(ex) + sq(ey));
+                    Piece p = {iN, iP, nX, nY, nX + t * ex, nY + t * ey, chosen[k], inner ? chosen[kk] : chosen[k],
+                               inner ? 1. : 0., ey / len, -ex / len, faceTx[face], faceTy[face]};
+                    piece = pieces.size();
+                    pieces.push_back(p);
+                }
+                pieceOf[3 * k + e] = piece;
+                entryP.push_back(piece); entryK.push_back(k);
+                if (inner && !isCut[kk]) { entryP.push_back(piece); entryK.push_back(kk); }   // its side too
+            }
+        }
+        // the pieces' Gauss points (fd2d/levelset.idp lsSegmentQuadrature), 10 blocks:
+        // x, y, w, then per point sa, sb, inner, nx, ny, tx, ty
+        long nq = pieces.size() * nG;
+        pointsOut.resize(10 * nq);
+        for (size_t p = 0; p < pieces.size(); p++) {
+            const Piece &c = pieces[p];
+            double len = sqrt(sq(c.bx - c.ax) + sq(c.by - c.ay));
+            const double value[7] = {c.sa, c.sb, c.inner, c.nx, c.ny, c.tx, c.ty};
+            for (int g = 0; g < nG; g++) {
+                long q = p * nG + g;
+                pointsOut[q] = c.ax + gt[g] * (c.bx - c.ax);
+                pointsOut[nq + q] = c.ay + gt[g] * (c.by - c.ay);
+                pointsOut[2 * nq + q] = len * gw[g];
+                for (int v = 0; v < 7; v++) pointsOut[(3 + v) * nq + q] = value[v];
+            }
+        }
+        long nE = entryP.size();
+        entryPointOut.resize(nE * nG);
+        entryElementOut.resize(nE * nG);
+        for (long j = 0; j < nE; j++)
+            for (int g = 0; g < nG; g++) {
+                entryPointOut[j * nG + g] = entryP[j] * nG + g;
+                entryElementOut[j * nG + g] = entryK[j];
+            }
+        return (long)pieces.size();
+    }
+};
+
+void projectNormal(const LevelSet &phi, double &qx, double &qy, double step) {
+    for (int it = 0; it < 3; it++) {
+        double gx, gy;
+        gradient(phi, qx, qy, step, gx, gy);
+        double f = phi(qx, qy), g2 = std::max(sq(gx) + sq(gy), 1e-300);
+        qx -= f * gx / g2;
+        qy -= f * gy / g2;
+        if (fabs(f) < 1e-14) break;
+    }
+}
+
+// Closest point (qx, qy) of {phi = 0} to (px, py): first x - phi grad phi/|grad phi|^2,
+// iterated onto the zero set (projectNormal: exact in one step for a signed distance
+// to a line or a circle); then, because that foot point is the closest one only for
+// such distances (ellipses, unions, expressions are not), the tangential part of
+// x - q is added and the point projected again, until x - q is normal to the curve
+// at q (at most 30 times; a kink of a union or intersection may stop it earlier, on
+// the curve).
+void project(const LevelSet &phi, double px, double py, double step, double &qx, double &qy) {
+    qx = px; qy = py;
+    projectNormal(phi, qx, qy, step);
+    for (int it = 0; it < 30; it++) {
+        double nx, ny;
+        gradient(phi, qx, qy, step, nx, ny);
+        double n = std::max(sqrt(sq(nx) + sq(ny)), 1e-300);
+        nx /= n; ny /= n;
+        double dx = px - qx, dy = py - qy, dn = dx * nx + dy * ny;
+        double tx = dx - dn * nx, ty = dy - dn * ny;
+        // the central-difference normal carries about 1e-9 of relative noise
+        if (sqrt(sq(tx) + sq(ty)) <= 1e-8 * sqrt(sq(dx) + sq(dy)) + 1e-6 * step) break;
+        qx += tx; qy += ty;
+        projectNormal(phi, qx, qy, step);
+    }
+}
+
+// The contact points' geometry (fd2d/contact.idp nitscheContactGeometry, which states
+// it): projections onto body 2's level set, gaps, normals and gamma.
+class ContactPointGeometry : public LevelSetFunction<ContactPointGeometry, Reals, Reals, Reals, Reals, Reals, Reals> {
+  public:
+    using LevelSetFunction::LevelSetFunction;
+
+    long evaluate(Stack stack, const LevelSet &levelSet) const {
+        const KN<double> &x = *arg<0>(stack);
+        const KN<double> &y = *arg<1>(stack);
+        const KN<double> &k = *arg<2>(stack);
+        const KN<double> &h = *arg<3>(stack);
+        const KN<double> &p = *arg<4>(stack);
+        KN<double> &o = *arg<5>(stack);
+        long n = x.N();
+        if (y.N() != n || k.N() != n || p.N() != 3) return -1L;
+        for (long q = 0; q < n; q++)
+            if (!(k[q] >= 0 && k[q] < h.N())) return -1L;
+        double gamma0 = p[0], step = p[1], shiftIn = p[2];
+        o.resize(6 * n);
+        for (long q = 0; q < n; q++) {
+            double fx, fy, gx, gy;
+            project(levelSet, x[q], y[q], step, fx, fy);
+            gradient(levelSet, fx, fy, step, gx, gy);
+            double gn = sqrt(sq(gx) + sq(gy)), nx = gx / gn, ny = gy / gn, hq = h[lround(k[q])];
+            o[q] = (x[q] - fx) * nx + (y[q] - fy) * ny;
+            o[n + q] = gamma0 * hq;
+            o[2 * n + q] = nx;
+            o[3 * n + q] = ny;
+            o[4 * n + q] = fx - shiftIn * hq * nx;
+            o[5 * n + q] = fy - shiftIn * hq * ny;
+        }
+        return n;
+    }
+};
+
+// Unit normals grad phi/|grad phi| at points (fd2d/levelset.idp lsGradient's central
+// differences): the cut boundaries' normals of the Nitsche holds and the estimators.
+class LevelSetNormals : public LevelSetFunction<LevelSetNormals, Reals, Reals, double, Reals> {
+  public:
+    using LevelSetFunction::LevelSetFunction;
+
+    long evaluate(Stack stack, const LevelSet &levelSet) const {
+        const KN<double> &x = *arg<0>(stack);
+        const KN<double> &y = *arg<1>(stack);
+        double h = arg<2>(stack);
+        KN<double> &o = *arg<3>(stack);
+        long n = x.N();
+        if (y.N() != n || !(h > 0)) return -1L;
+        o.resize(2 * n);
+        for (long q = 0; q < n; q++) {
+            double gx, gy;
+            gradient(levelSet, x[q], y[q], h, gx, gy);
+            double gn = sqrt(sq(gx) + sq(gy));
+            o[q] = gx / gn;
+            o[n + q] = gy / gn;
+        }
+        return n;
+    }
+};
+
+}  // namespace
+
+static void Load_Init() {
+    Global.Add("levelSetNormals", "(", new OneOperatorCode<LevelSetNormals>());
+    Global.Add("contactPointGeometry", "(", new OneOperatorCode<ContactPointGeometry>());
+    Global.Add("curvedCellRules", "(", new OneOperatorCode<CurvedCellRules>());
+    Global.Add("cutEdgePieces", "(", new OneOperatorCode<CutEdgePieces>());
+}
+
+LOADFUNC(Load_Init)

@@ -1,0 +1,199 @@
+// pressure_recovery: the recovered contact pressure of freefem/lib/core/pressure_recovery.idp
+// (which states the fit: a weighted least-squares plane of the raw multiplier over
+// the points within a radius), compiled.
+//
+// Why compiled, and with cells of the smallest radius: every point near a pressure
+// reads the points within its radius. The interpreted version found them through
+// cells of the largest radius, which on a graded 3D mesh (fine where the contact is,
+// coarse around it) put most of the contact points in every window: quadratic in
+// the number of points, most of the graded reference's output stage. Here each
+// point reads the cells its own radius reaches, and the window is sorted by
+// distance, then by point number: a fit's sums do not depend on the cells.
+//
+// Script interface:
+//   int pressureRecoveryFit(int dim, real[int] qx, real[int] qy, real[int] qz,
+//                           real[int] nqx, real[int] nqy, real[int] nqz, real[int] qw,
+//                           real[int] pRaw, real[int] radius, real[int] pRec)
+//   pRec (resized to the number of points) = the recovered pressure at each point;
+//   dim 2 reads qz and nqz but takes the tangent (-ny, nx). Returns the number of
+//   points fitted, -1 when the arrays' sizes differ or a radius is not positive.
+#include "ff++.hpp"
+#include "script_powers.hpp"   // sq, cube: x^2, x^3 as the script computes them
+
+#include <algorithm>
+#include <cmath>
+#include <utility>
+#include <vector>
+
+namespace {
+
+double sumOf(const std::vector<double> &a) {
+    double s = 0;
+    for (double v : a) s += v;
+    return s;
+}
+
+double dot(const std::vector<double> &a, const std::vector<double> &b) {
+    double s = 0;
+    for (size_t i = 0; i < a.size(); i++) s += a[i] * b[i];
+    return s;
+}
+
+long recover(int dim, const KN_<double> &qx, const KN_<double> &qy, const KN_<double> &qz, const KN_<double> &nqx,
+             const KN_<double> &nqy, const KN_<double> &nqz, const KN_<double> &qw, const KN_<double> &pRaw,
+             const KN_<double> &radius, KN<double> &pRec) {
+    long n = qx.N();
+    pRec.resize(n);
+    pRec = 0.;
+    if (n == 0 || pRaw.max() <= 0) return 0;
+    if (!(radius.min() > 0)) return -1;
+    // cells of the smallest radius, coarser when there would be more than 4 per point;
+    // a point's window reads the cells within its own radius around its cell
+    double cell = radius.min();
+    double x0 = qx.min(), y0 = qy.min(), z0 = qz.min();
+    long nx = 1, ny = 1, nz = 1, cells = 0;
+    for (int attempt = 0; attempt < 200; attempt++) {
+        nx = 1 + lround(floor((qx.max() - x0) / cell));
+        ny = 1 + lround(floor((qy.max() - y0) / cell));
+        nz = 1 + lround(floor((qz.max() - z0) / cell));
+        cells = nx * ny * nz;
+        if (cells <= 4 * n + 1000) break;
+        cell *= 1.5;
+    }
+    std::vector<long> cx(n), cy(n), cz(n), order(n), start(cells + 1, 0);
+    for (long i = 0; i < n; i++) {
+        cx[i] = std::min(nx - 1, lround(floor((qx[i] - x0) / cell)));
+        cy[i] = std::min(ny - 1, lround(floor((qy[i] - y0) / cell)));
+        cz[i] = std::min(nz - 1, lround(floor((qz[i] - z0) / cell)));
+        start[cx[i] + nx * (cy[i] + ny * cz[i]) + 1]++;
+    }
+    // the points of cell c are order[start[c] .. start[c + 1] - 1], by index
+    for (long c = 0; c < cells; c++) start[c + 1] += start[c];
+    {
+        std::vector<long> next(start.begin(), start.end() - 1);
+        for (long i = 0; i < n; i++) order[next[cx[i] + nx * (cy[i] + ny * cz[i])]++] = i;
+    }
+    // only points within the largest radius of a point with a pressure can fit one
+    double low[3] = {1e300, 1e300, 1e300}, high[3] = {-1e300, -1e300, -1e300};
+    for (long i = 0; i < n; i++)
+        if (pRaw[i] > 0) {
+            low[0] = std::min(low[0], qx[i]); low[1] = std::min(low[1], qy[i]); low[2] = std::min(low[2], qz[i]);
+            high[0] = std::max(high[0], qx[i]); high[1] = std::max(high[1], qy[i]); high[2] = std::max(high[2], qz[i]);
+        }
+    double reach = radius.max();
+    for (int d = 0; d < 3; d++) { low[d] -= reach; high[d] += reach; }
+    long fitted = 0;
+    std::vector<std::pair<double, long>> near;
+    std::vector<double> dx, dy, dz, w, p, s, t, ws, wt;
+    for (long i = 0; i < n; i++) {
+        if (qx[i] < low[0] || qx[i] > high[0] || qy[i] < low[1] || qy[i] > high[1] || qz[i] < low[2]
+            || qz[i] > high[2])
+            continue;
+        // the points within the radius (cells within ceil(r/cell) of x_i's: a cell index
+        // differs from x_i's by at most that along each axis), by distance, then index
+        double r = radius[i], limit = sq(r) * (1. + 1e-12);
+        long k = std::max(1L, lround(ceil(r / cell)));
+        long kz = (dim == 3) ? k : 0;
+        near.clear();
+        for (long jz = std::max(cz[i] - kz, 0L); jz <= std::min(cz[i] + kz, nz - 1); jz++)
+            for (long jy = std::max(cy[i] - k, 0L); jy <= std::min(cy[i] + k, ny - 1); jy++) {
+                long row = nx * (jy + ny * jz);
+                long first = start[std::max(cx[i] - k, 0L) + row], end = start[std::min(cx[i] + k, nx - 1) + row + 1];
+                for (long c = first; c < end; c++) {
+                    long j = order[c];
+                    double ex = qx[j] - qx[i], ey = qy[j] - qy[i], ez = qz[j] - qz[i];
+                    double d2 = ex * ex + ey * ey + ez * ez;
+                    if (d2 < limit) near.emplace_back(d2, j);
+                }
+            }
+        std::sort(near.begin(), near.end());
+        long inside = near.size();
+        if (inside == 0) continue;
+        dx.resize(inside); dy.resize(inside); dz.resize(inside); w.resize(inside); p.resize(inside);
+        for (long c = 0; c < inside; c++) {
+            long j = near[c].second;
+            dx[c] = qx[j] - qx[i]; dy[c] = qy[j] - qy[i]; dz[c] = qz[j] - qz[i];
+            w[c] = qw[j]; p[c] = pRaw[j];
+        }
+        // tangents: 2D (-ny, nx); 3D t1 = n x e (e the axis least aligned with n), t2 = n x t1
+        double t1x = -nqy[i], t1y = nqx[i], t1z = 0, t2x = 0, t2y = 0, t2z = 0;
+        if (dim == 3) {
+            if (fabs(nqx[i]) <= fabs(nqy[i]) && fabs(nqx[i]) <= fabs(nqz[i])) {
+                t1x = 0; t1y = nqz[i]; t1z = -nqy[i];
+            } else if (fabs(nqy[i]) <= fabs(nqz[i])) {
+                t1x = -nqz[i]; t1y = 0; t1z = nqx[i];
+            } else {
+                t1x = nqy[i]; t1y = -nqx[i]; t1z = 0;
+            }
+            double norm = sqrt(sq(t1x) + sq(t1y) + sq(t1z));
+            t1x /= norm; t1y /= norm; t1z /= norm;
+            t2x = nqy[i] * t1z - nqz[i] * t1y;
+            t2y = nqz[i] * t1x - nqx[i] * t1z;
+            t2z = nqx[i] * t1y - nqy[i] * t1x;
+        }
+        // the tangential coordinates s, t of the window's points, in units of the radius
+        s.resize(inside); t.resize(inside); ws.resize(inside); wt.resize(inside);
+        for (long c = 0; c < inside; c++) {
+            s[c] = (t1x / r) * dx[c];
+            t[c] = (t2x / r) * dx[c];
+            s[c] += (t1y / r) * dy[c];
+            s[c] += (t1z / r) * dz[c];
+            t[c] += (t2y / r) * dy[c];
+            t[c] += (t2z / r) * dz[c];
+            ws[c] = w[c] * s[c];
+            wt[c] = w[c] * t[c];
+        }
+        // normal equations of the fit
+        double m00 = sumOf(w), m01 = sumOf(ws), m02 = sumOf(wt);
+        double m11 = dot(ws, s), m12 = dot(ws, t), m22 = dot(wt, t);
+        double b0 = dot(w, p), b1 = dot(ws, p), b2 = dot(wt, p);
+        if (m00 <= 0) continue;
+        // the constant term by Cramer's rule; a window whose points do not span the
+        // tangent(s) keeps its weighted mean
+        double a = b0 / m00;
+        if (dim == 3) {
+            double det = m00 * (m11 * m22 - sq(m12)) - m01 * (m01 * m22 - m12 * m02) + m02 * (m01 * m12 - m11 * m02);
+            if (det > 1e-8 * cube(m00))
+                a = (b0 * (m11 * m22 - sq(m12)) - m01 * (b1 * m22 - m12 * b2) + m02 * (b1 * m12 - m11 * b2)) / det;
+        } else {
+            double det = m00 * m11 - sq(m01);
+            if (det > 1e-8 * sq(m00)) a = (b0 * m11 - m01 * b1) / det;
+        }
+        pRec[i] = std::max(a, 0.);
+        fitted++;
+    }
+    return fitted;
+}
+
+class PressureRecoveryFit : public E_F0mps {
+  public:
+    typedef long Result;
+    Expression dim, arrays[10];
+
+    explicit PressureRecoveryFit(const basicAC_F0 &args) {
+        args.SetNameParam();
+        dim = to<long>(args[0]);
+        for (int a = 0; a < 10; a++) arrays[a] = to<KN<double> *>(args[1 + a]);
+    }
+    static ArrayOfaType typeargs() {
+        aType v = atype<KN<double> *>();
+        return ArrayOfaType(atype<long>(), v, v, v, v, v, v, v, v, v, v);
+    }
+    static E_F0 *f(const basicAC_F0 &args) { return new PressureRecoveryFit(args); }
+
+    AnyType operator()(Stack stack) const {
+        long d = GetAny<long>((*dim)(stack));
+        KN<double> *a[10];
+        for (int k = 0; k < 10; k++) a[k] = GetAny<KN<double> *>((*arrays[k])(stack));
+        long n = a[0]->N();
+        for (int k = 0; k < 9; k++)
+            if (a[k]->N() != n) return -1L;
+        return recover(d, *a[0], *a[1], *a[2], *a[3], *a[4], *a[5], *a[6], *a[7], *a[8], *a[9]);
+    }
+};
+
+}  // namespace
+
+static void Load_Init() { Global.Add("pressureRecoveryFit", "(", new OneOperatorCode<PressureRecoveryFit>()); }
+
+LOADFUNC(Load_Init)

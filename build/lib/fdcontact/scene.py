@@ -1,0 +1,231 @@
+"""Scene files: TOML loading, --set overrides by dotted key, validation, dispatch.
+
+A scene names the FreeFEM script that solves it (scene.script); each script has
+a module here with its schema and its mapping to FreeFEM command-line flags.
+"""
+
+import copy
+import json
+import math
+import re
+import tomllib
+from pathlib import Path
+
+from .errors import SceneError
+from .schema import Field, described, positive, validate
+
+SAFE_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}")
+
+
+@described("1-100 letters, digits, _ - ., not starting with . or -")
+def safe_name(value):
+    """A scene name becomes part of a folder name: no path separators, quotes or spaces."""
+    if not SAFE_NAME.fullmatch(value):
+        return "must be 1-100 letters, digits, '_', '-' or '.', not starting with '.' or '-'"
+    return None
+
+
+safe_name.flag_rule = "name"   # core/args.idp checks the same pattern (argSafeName)
+
+
+SCENE_HEADER = {
+    "name": Field("str", flag="name", check=safe_name, doc="scene name, used for run folders"),
+    "script": Field("str", doc="FreeFEM top-level script (without .edp) that solves the scene: fd_contact_2d, "
+                               "fd_contact_3d or contact_foundation_2d"),
+    "description": Field("str", default="", doc="free text, kept in scene.json"),
+    "units": Field("tree", default={}, doc="the scene's units, for labels only: { length = \"mm\", force = "
+                                          "\"N\", stress = \"MPa\" } (any consistent system; echoed in results.json "
+                                          "and used by the plots' axes)"),
+}
+UNIT_KEYS = ("length", "force", "stress")
+
+
+def check_units(units, source):
+    """The [scene] units table: names of at most 20 printable characters for length, force, stress."""
+    if not isinstance(units, dict):
+        raise SceneError(f"{source}: key 'scene.units': expected a table {{ length = \"m\", ... }}")
+    for key, value in units.items():
+        if key not in UNIT_KEYS:
+            raise SceneError(f"{source}: key 'scene.units.{key}': unknown (known: {', '.join(UNIT_KEYS)})")
+        if not isinstance(value, str) or not 0 < len(value) <= 20 or not value.isprintable():
+            raise SceneError(f"{source}: key 'scene.units.{key}': a unit name of 1-20 printable characters, "
+                             f"got {str(value)[:30]!r}")
+    return units
+
+
+# What a run may take (the driver stops a run beyond them: exit 2). Not sent to FreeFEM.
+LIMITS = {
+    "time_s": Field("float", default=7200.0, check=positive, unit="s",
+                    doc="wall-time limit of the FreeFEM run; the run is stopped beyond it (exit 2)"),
+    "memory_mb": Field("float", default=None, check=positive, unit="MiB",
+                       doc="resident-memory limit of the FreeFEM run (default: 95 % of the memory available "
+                           "when it starts); the run is stopped beyond it (exit 2)"),
+    "gmsh_s": Field("float", default=60.0, check=positive, unit="s",
+                    doc="wall-time limit of each gmsh run (gmsh shapes, gmsh meshes)"),
+}
+
+
+def full_schema(module):
+    """Every table a scene of this script module may hold."""
+    return dict(scene=SCENE_HEADER, **module.SCHEMA, limits=LIMITS)
+
+
+def script_modules():
+    # Imported here so that each script module can import this one.
+    from . import fd2d, fd3d, foundation
+
+    return {"contact_foundation_2d": foundation, "fd_contact_2d": fd2d, "fd_contact_3d": fd3d}
+
+
+def parse_override(text):
+    """'a.b=value' -> (['a', 'b'], value) with value read as a TOML literal."""
+    if "=" not in text:
+        raise SceneError(f"override '{text}': expected KEY=VALUE")
+    key, raw = text.split("=", 1)
+    key = key.strip()
+    if not key:
+        raise SceneError(f"override '{text}': empty key")
+    try:
+        value = parse_toml(f"v = {raw.strip()}", f"override '{text}'")["v"]
+    except SceneError as exc:
+        if "nested" in str(exc):
+            raise
+        value = raw.strip()          # bare words are strings: method.stabilization=ghost
+    return key.split("."), value
+
+
+def apply_override(data, path, value, source):
+    node = data
+    for i, part in enumerate(path[:-1]):
+        if isinstance(node, list):
+            if not part.isdigit() or int(part) >= len(node):
+                raise SceneError(f"{source}: override '{'.'.join(path)}': no item {part}")
+            node = node[int(part)]
+            continue
+        node = node.setdefault(part, {})
+        if not isinstance(node, (dict, list)):
+            raise SceneError(f"{source}: override '{'.'.join(path)}': '{part}' is not a table")
+    last = path[-1]
+    if isinstance(node, list):
+        if not last.isdigit() or int(last) >= len(node):
+            raise SceneError(f"{source}: override '{'.'.join(path)}': no item {last}")
+        node[int(last)] = value
+    else:
+        node[last] = value
+
+
+def read_text_file(path, what):
+    """The UTF-8 text of a scene or sweep file, or one SceneError naming why not."""
+    try:
+        if path.is_dir():
+            raise SceneError(f"{path}: is a folder, not a {what}")
+        data = path.read_bytes()
+    except OSError as exc:
+        raise SceneError(f"{path}: cannot read {what} ({exc.strerror})") from None
+    if b"\0" in data:
+        raise SceneError(f"{path}: not a text file (binary data); a {what} is TOML text")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise SceneError(f"{path}: not UTF-8 text (byte {exc.start}); a {what} is TOML text") from None
+
+
+MAX_TOML_DEPTH = 40
+
+
+def parse_toml(text, source):
+    """The tables of a TOML text, or one SceneError: malformed, or nested deeper than a scene needs
+    (checked before parsing: the TOML reader recurses once per level)."""
+    depth = deepest = 0
+    quote = comment = escaped = None
+    for char in text:
+        if comment:
+            comment = char != "\n"
+        elif quote:
+            if escaped:
+                escaped = False
+            elif char == "\\" and quote == '"':
+                escaped = True
+            elif char == quote:
+                quote = None
+        elif char == "#":
+            comment = True
+        elif char in "\"'":
+            quote = char
+        elif char in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif char in "]}":
+            depth -= 1
+    if deepest > MAX_TOML_DEPTH:
+        raise SceneError(f"{source}: arrays or tables nested {deepest} deep; at most {MAX_TOML_DEPTH}")
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{source}: malformed TOML: {exc}") from None
+    except RecursionError:
+        raise SceneError(f"{source}: arrays or tables nested too deep") from None
+
+
+def load_scene(path, overrides=()):
+    """Read, override and validate a scene file; return (scene dict, script module)."""
+    path = Path(path)
+    source = str(path)
+    data = parse_toml(read_text_file(path, "scene file"), source)
+    return load_scene_data(data, source, path.parent, overrides)
+
+
+def load_scene_data(data, source, base_dir, overrides=()):
+    """Override and validate a scene given as tables (source: how errors name it; base_dir:
+    the folder its files, e.g. a gmsh shape's, are read from); (scene dict, script module)."""
+    if not isinstance(data, dict):
+        raise SceneError(f"{source}: a scene is a table of tables, got {type(data).__name__}")
+    data = copy.deepcopy(data)
+    for text_override in overrides:
+        keys, value = parse_override(text_override)
+        apply_override(data, keys, value, source)
+    header = validate(data.get("scene", {}), SCENE_HEADER, source, "scene.")
+    check_units(header["units"], source)
+    modules = script_modules()
+    if header["script"] not in modules:
+        known = ", ".join(sorted(modules))
+        raise SceneError(f"{source}: key 'scene.script': unknown script {header['script']!r} (known: {known})")
+    module = modules[header["script"]]
+    scene = validate(data, full_schema(module), source)
+    scene["_base_dir"] = Path(base_dir)
+    module.check(scene, source)
+    scene["_source"] = source
+    return scene, module
+
+
+def toml_literal(value):
+    """A value as a TOML literal that reads back to the same value (tables inline)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "nan"
+        if math.isinf(value):
+            return "inf" if value > 0 else "-inf"
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, list):
+        return "[" + ", ".join(toml_literal(v) for v in value) + "]"
+    if isinstance(value, dict):      # an inline table: a shape, a hold, a load
+        return "{ " + ", ".join(f"{json.dumps(k)} = {toml_literal(v)}" for k, v in value.items()) + " }"
+    raise SceneError(f"value {value!r}: not a TOML value")
+
+
+def toml_text(data):
+    """A scene's tables as TOML text: each top-level table a [section] of key = literal lines
+    (nested tables and arrays of tables inline)."""
+    lines = [f"{json.dumps(key)} = {toml_literal(value)}" for key, value in data.items()
+             if not isinstance(value, dict)]          # top-level values ([[probe]]) before any table
+    for section, table in data.items():
+        if isinstance(table, dict):
+            lines.append(f"\n[{json.dumps(section)}]")
+            lines += [f"{json.dumps(key)} = {toml_literal(value)}" for key, value in table.items()]
+    return "\n".join(lines).lstrip() + "\n"

@@ -1,0 +1,60 @@
+"""The shipped scenes of the 2D solver run as a user would (make scenes-study):
+results/scenes.csv (one row per scene: DOFs, Newton iterations, contact force,
+balance, wall time) and results/hertz.csv (the Hertz scene against Hertz's
+half-width, total force and pressure profile)."""
+
+import math
+
+import numpy as np
+import pandas as pd
+
+from ..errors import DriverError
+from .common import RESULTS_DIR, progress, run_point
+
+SCENES = ["cases/disk_on_slab.toml", "cases/disk_on_tilted_slab.toml", "cases/hertz_cylinders.toml",
+          "cases/punch.toml", "cases/ellipse_on_arch.toml", "cases/ring_on_slab.toml", "cases/cam_on_slab.toml"]
+
+# cases/hertz_cylinders.toml: R1 = 0.25 on R2 = 0.75, E = 1, nu = 0.3, total load P
+HERTZ_P, HERTZ_R1, HERTZ_R2, HERTZ_E, HERTZ_NU = 0.001, 0.25, 0.75, 1.0, 0.3
+
+
+def hertz_solution():
+    radius = 1 / (1 / HERTZ_R1 + 1 / HERTZ_R2)
+    e_star = HERTZ_E / (2 * (1 - HERTZ_NU ** 2))
+    a = math.sqrt(4 * HERTZ_P * radius / (math.pi * e_star))
+    return a, 2 * HERTZ_P / (math.pi * a)
+
+
+def hertz_row(results, folder):
+    """Half-width (half the extent of the active points), total force and the relative
+    L2 difference of the pressure from Hertz's over the zone |x| < a."""
+    a, p0 = hertz_solution()
+    x0, x1 = results["contact"]["active_extent"]["x"]
+    s = pd.read_csv(folder / "contact_pressure.csv")
+    zone = s[(s.x.abs() < a) & (s.y < 0.05)]
+    exact = p0 * np.sqrt(1 - zone.x ** 2 / a ** 2)
+    profile = math.sqrt(np.sum(zone.weight * (zone.pressure - exact) ** 2) / np.sum(zone.weight * exact ** 2))
+    return dict(a_hertz=a, half_width=(x1 - x0) / 2, half_width_error=abs((x1 - x0) / 2 - a) / a,
+                force=results["contact"]["force_on_body1"][1], force_error=abs(results["contact"]["force_on_body1"][1]
+                                                                            - HERTZ_P),
+                p0_hertz=p0, pressure_l2_error=profile)
+
+
+def scenes():
+    rows, hertz = [], []
+    for i, case in enumerate(SCENES, start=1):
+        progress(i, len(SCENES), case)
+        row, results, folder = run_point(case, [])
+        if results is None:
+            raise DriverError(f"{case} failed: {row['message']}")
+        row.update(force_y=results["contact"]["force_on_body1"][1],
+                   balance_error=results["balance"]["balance_error"],
+                   area_body1=results["measures"]["body1"], area_body1_exact=results["measures"].get("body1_exact"))
+        rows.append(row)
+        if case.endswith("hertz_cylinders.toml"):
+            hertz.append(dict(hertz_row(results, folder), dofs=results["dofs"], wall_s=row["wall_s"],
+                              adapt_steps=len(results["steps"]["dofs"]) - 1))
+    RESULTS_DIR.mkdir(exist_ok=True)
+    pd.DataFrame(rows).to_csv(RESULTS_DIR / "scenes.csv", index=False)
+    pd.DataFrame(hertz).to_csv(RESULTS_DIR / "hertz.csv", index=False)
+    print(f"wrote {RESULTS_DIR / 'scenes.csv'} and {RESULTS_DIR / 'hertz.csv'}")

@@ -1,0 +1,105 @@
+"""The installable package: the Python API (dict in, DataFrames and meshes out), the
+literate example of docs/, a published folder that re-runs, provenance, units, and what
+a wheel ships (FreeFEM scripts, plugins' sources, scenes, the console script)."""
+
+import json
+import os
+import subprocess
+import sys
+import zipfile
+
+import pytest
+
+from tests.conftest import REPO, run_cli
+
+
+def test_the_api_takes_a_dict_and_gives_dataframes_and_meshes(tmp_path):
+    import driver as fdcontact     # the checkout's name for the package fdcontact
+
+    scene = fdcontact.Scene(REPO / "cases" / "disk_on_slab.toml").set("mesh.nx", 20).set("method.degree", 1)
+    run = fdcontact.run(scene.data, out=tmp_path / "r")
+    assert run.results["status"] == "converged"
+    assert list(run.newton.columns) == ["residual", "active_measure", "changed_measure"]
+    assert len(run.newton) == run.results["newton"]["iterations"]
+    assert run.newton.residual.iloc[-1] == run.results["newton"]["residual"][-1]
+    pressure = run.pressure
+    assert (pressure.weight * pressure.pressure).sum() == pytest.approx(
+        run.results["contact"]["force_on_body1"][1], rel=1e-6)
+    assert list(run.steps.measure_body1) == run.results["steps"]["measure_body1"]
+    bodies, inside = run.bodies(), run.bodies(inside=True)
+    for name in ("body1", "body2"):
+        cells, kept = bodies[name].cells[0].data, inside[name].cells[0].data
+        assert 0 < len(kept) < len(cells)
+        assert (bodies[name].point_data["phi"][kept] <= 0).all()
+    with pytest.raises(fdcontact.SceneError) as error:
+        fdcontact.run(scene.set("mesh.nx", 1).data, out=tmp_path / "bad")
+    assert error.value.exit_code == 2 and "mesh.nx" in str(error.value)
+    assert not (tmp_path / "bad").exists()
+
+
+def test_a_scene_written_as_toml_reads_back_the_same(tmp_path):
+    import driver as fdcontact
+
+    scene = fdcontact.Scene(REPO / "cases" / "ring_on_slab.toml").set("mesh.nx", 30)
+    path = scene.write(tmp_path / "ring.toml")
+    again = fdcontact.Scene(path)
+    assert again.data == scene.data
+    assert again.check()[0]["mesh"]["nx"] == 30
+    with pytest.raises(fdcontact.SceneError):
+        scene.write(path)     # never over an existing file
+
+
+def test_the_literate_example_runs(tmp_path):
+    proc = subprocess.run([sys.executable, str(REPO / "docs" / "examples" / "python_api.py"), str(tmp_path / "ex")],
+                          cwd=tmp_path, capture_output=True, text=True,
+                          env=dict(os.environ, PYTHONPATH=str(REPO)))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "refused (exit code 2)" in proc.stdout and "active contact points" in proc.stdout
+
+
+def test_a_published_folder_runs_again_with_its_command(tmp_path):
+    out = tmp_path / "r"
+    proc = run_cli("run", "cases/disk_on_slab.toml", "--out", str(out), "--set", "mesh.nx=20")
+    assert proc.returncode == 0, proc.stderr
+    first = json.loads((out / "results.json").read_text())
+    assert str(out) in (out / "command.txt").read_text() and ".staging" not in (out / "command.txt").read_text()
+    again = subprocess.run(["sh", str(out / "command.txt")], capture_output=True, text=True)
+    assert again.returncode == 0, again.stdout[-2000:] + again.stderr[-2000:]
+    second = json.loads((out / "results.json").read_text())
+    assert second["probes"] == first["probes"] and second["contact"]["max_pressure"] == first["contact"]["max_pressure"]
+
+
+def test_results_say_where_they_came_from_and_in_what_units(tmp_path):
+    out = tmp_path / "r"
+    proc = run_cli("run", "cases/disk_on_slab.toml", "--out", str(out), "--set",
+                   'mesh.nx=12 scene.units={ length = "mm", stress = "MPa" }')
+    assert proc.returncode == 0, proc.stderr
+    r = json.loads((out / "results.json").read_text())
+    prov = r["provenance"]
+    from driver import __version__
+
+    assert prov["version"] == __version__ and prov["package"] == "fdcontact"
+    head = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
+    assert prov["git_commit"].startswith(head) if head else prov["git_commit"] is None
+    assert prov["freefem"] and prov["mumps"] and prov["host"] and prov["date"][:4].isdigit()
+    assert f"-outdir {out}" in prov["command"]
+    assert r["units"] == {"length": "mm", "stress": "MPa"}
+    proc = run_cli("plot", str(out))
+    assert proc.returncode == 0, proc.stderr
+    bad = run_cli("run", "cases/disk_on_slab.toml", "--out", str(tmp_path / "b"), "--set", 'scene.units={ time = "s" }')
+    assert bad.returncode == 2 and "scene.units.time" in bad.stderr
+
+
+def test_a_wheel_ships_the_scripts_the_plugins_sources_and_the_command(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q",
+                           "-w", str(tmp_path), str(REPO)], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    wheel = next(tmp_path.glob("fdcontact-*.whl"))
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for name in ("fdcontact/api.py", "fdcontact/freefem/fd_contact_2d.edp", "fdcontact/freefem/fd_contact_3d.edp",
+                 "fdcontact/freefem/lib/core/contact_law.idp", "fdcontact/freefem/plugins/contact_mumps.cpp",
+                 "fdcontact/freefem/plugins/link_flags.txt", "fdcontact/cases/disk_on_slab.toml",
+                 "fdcontact/cases/geo/cam.geo"):
+        assert name in names, name
+    entry = next(n for n in names if n.endswith("entry_points.txt"))
+    assert "fdcontact = fdcontact.cli:main" in zipfile.ZipFile(wheel).read(entry).decode()
