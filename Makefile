@@ -108,6 +108,13 @@ case: setup
 test: setup
 	$(VENV_PYTHON) -m pytest -q tests
 
+# The fast tier: the tests that start no FreeFEM (pytest -m "not freefem"), with a
+# stand-in FreeFem++ first on PATH that fails (tests/fast_tier): a test that starts
+# FreeFEM without its mark fails here.
+.PHONY: test-fast
+test-fast: setup
+	PATH="$(CURDIR)/tests/fast_tier:$$PATH" $(VENV_PYTHON) -m pytest -q -m "not freefem" tests
+
 # clean keeps $(VENV): making it again downloads every package (rm -rf $(VENV) drops it).
 clean:
 	rm -rf runs .pytest_cache $(PLUGINS)

@@ -6,6 +6,8 @@ each)."""
 
 import json
 
+import pytest
+
 from conftest import run_cli, run_freefem
 
 FAST = ["--set", "mesh.nx=20", "--set", "method.degree=1", "--set", "output.vtu=false",
@@ -45,6 +47,7 @@ def one_error_line(proc):
     return lines[0]
 
 
+@pytest.mark.freefem
 def test_shipped_scene_is_carried_by_the_contact(tmp_path):
     proc = driver(tmp_path)
     assert proc.returncode == 0, proc.stderr
@@ -55,6 +58,7 @@ def test_shipped_scene_is_carried_by_the_contact(tmp_path):
     assert balance["roundoff_share"] < 1e-11 and balance["sideways_share"] == 0
 
 
+@pytest.mark.freefem
 def test_shipped_scenes_pass_the_plausibility_gates(tmp_path):
     # measured, disk (P1 NX = 20): penetration 4.5e-4 of the slab's size 0.25, the disk's
     # drift 0.033 of its size 0.5; ball (nx = 10): 4.2e-3 and 0.061
@@ -71,6 +75,7 @@ def test_shipped_scenes_pass_the_plausibility_gates(tmp_path):
     assert balance["pins_share"] < 1e-9 and balance["balance_error"] < 5e-8    # 1.9e-10, 3.0e-8
 
 
+@pytest.mark.freefem
 def test_soft_body_overlapping_the_slab_is_refused(tmp_path):
     # E = 1e-6 under the default weight: Newton converges, the disk overlaps the slab by
     # 32.8 (131 times the slab's size 0.25) and drifts by 5172 times its own size
@@ -83,6 +88,7 @@ def test_soft_body_overlapping_the_slab_is_refused(tmp_path):
     assert fail["status"] == "implausible" and 30 < fail["max_penetration"] < 35
 
 
+@pytest.mark.freefem
 def test_soft_ball_overlapping_the_slab_is_refused_in_3d(tmp_path):
     proc = driver_3d(tmp_path, *lame(1e-6))
     assert proc.returncode == 3
@@ -91,6 +97,7 @@ def test_soft_ball_overlapping_the_slab_is_refused_in_3d(tmp_path):
     assert fail["status"] == "implausible" and fail["max_penetration"] > 10 * 0.25
 
 
+@pytest.mark.freefem
 def test_implausible_run_kept_when_allowed_is_flagged(tmp_path):
     proc = driver(tmp_path, *lame(1e-6), "--set", "solver.allow_implausible=true")
     assert proc.returncode == 0, proc.stderr
@@ -99,6 +106,7 @@ def test_implausible_run_kept_when_allowed_is_flagged(tmp_path):
     assert plaus["implausible"] == 1 and plaus["allow_implausible"] == 1 and plaus["penetration_ratio"] > 100
 
 
+@pytest.mark.freefem
 def test_ball_held_sideways_by_the_mass_term_alone_is_refused_as_drifting(tmp_path):
     # no pins, a sideways load of 5.7e-6 of the weight, mass_eps = 1e-9 and the balance
     # gate waived: the ball's centre drifted by (351, 453) with exit 0; now 1146 times its size
@@ -113,6 +121,7 @@ def test_ball_held_sideways_by_the_mass_term_alone_is_refused_as_drifting(tmp_pa
     assert fail["status"] == "implausible" and 570 < fail["drift_body1"] < 576
 
 
+@pytest.mark.freefem
 def test_stiff_ball_within_the_round_off_passes(tmp_path):
     # E1 = 1e6 on the slab's E = 2.5, load purely vertical: the pins carry 3.0e-6 of the
     # load, the round-off of the solve is 1.9e-4 of it (gamma, set by the soft slab, makes
@@ -126,6 +135,7 @@ def test_stiff_ball_within_the_round_off_passes(tmp_path):
     assert balance["sideways_share"] == 0 and balance["unbalanced"] == 0
 
 
+@pytest.mark.freefem
 def test_stiffer_ball_is_refused_for_its_round_off(tmp_path):
     # E1 = 1e7: round-off 1.9e-2 of the load, beyond the 1 % the gate accepts
     proc = driver_3d(tmp_path, *lame(1e7))
@@ -136,6 +146,7 @@ def test_stiffer_ball_is_refused_for_its_round_off(tmp_path):
     assert fail["status"] == "unbalanced" and 1.5e-2 < fail["roundoff_share"] < 2.5e-2
 
 
+@pytest.mark.freefem
 def test_sideways_load_on_the_mass_term_names_the_missing_pins(tmp_path):
     # no pins, mass_eps = 1e-3: the mass term carries 2.6e-4 of the load, which has a
     # sideways share of 2e-4; the advice is pins or a support, not a smaller mass_eps
@@ -147,6 +158,7 @@ def test_sideways_load_on_the_mass_term_names_the_missing_pins(tmp_path):
     assert "pins or a support must" in line and "lower mass_eps" not in line
 
 
+@pytest.mark.freefem
 def test_ball_pulled_away_is_a_floating_body_in_3d(tmp_path):
     # before: "semi-smooth Newton did not converge in 30 iterations"
     proc = driver_3d(tmp_path, "--set", "mesh.nx=8", "--set", "body1.body_force=[0, 0, 0.1]")
@@ -169,6 +181,7 @@ def test_body_smaller_than_the_mesh_is_named_with_the_mesh_size(tmp_path):
     assert far.returncode == 2 and "misses the box" in far.stderr
 
 
+@pytest.mark.freefem
 def test_sideways_load_on_the_pins_is_refused(tmp_path):
     proc = driver(tmp_path, *SIDEWAYS)
     assert proc.returncode == 3
@@ -178,6 +191,7 @@ def test_sideways_load_on_the_pins_is_refused(tmp_path):
     assert not (tmp_path / "run.failed" / "results.json").exists()
 
 
+@pytest.mark.freefem
 def test_sideways_load_kept_when_allowed_is_flagged(tmp_path):
     proc = driver(tmp_path, *SIDEWAYS, "--set", "solver.allow_unbalanced=true")
     assert proc.returncode == 0, proc.stderr
@@ -186,6 +200,7 @@ def test_sideways_load_kept_when_allowed_is_flagged(tmp_path):
     assert balance["unbalanced"] == 1 and balance["pins_share"] > 0.28
 
 
+@pytest.mark.freefem
 def test_singular_stiffness_is_named(tmp_path):
     # E1/E2 = 1e30: no digit left in double precision, not "does not touch"
     proc = driver(tmp_path, "--set", "body1.lambda=1e30", "--set", "body1.mu=1e30")
@@ -195,6 +210,7 @@ def test_singular_stiffness_is_named(tmp_path):
     assert failure["status"] == "singular_system"
 
 
+@pytest.mark.freefem
 def test_direct_runs_with_extreme_parameters_fail_with_exit_3(tmp_path):
     out = tmp_path / "direct"
     proc = run_freefem("fd_contact_2d.edp", "-Ddegree=1", "-nx", 20, "-estimators", 0, "-vtu", 0,

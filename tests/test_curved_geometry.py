@@ -13,6 +13,8 @@ import pytest
 
 from tests.conftest import REPO, run_freefem, saved_run, tool_errors
 
+pytestmark = pytest.mark.freefem      # every test here starts FreeFEM (make test-fast leaves them out)
+
 # Disk-centre u_y of the disk on slab, P2, theta = -1, gamma0 = 1/200, curved geometry,
 # NX = 320 (make curved-study, results/curved_convergence.csv).
 CENTRE_UY_REF = -1.833891860157e-02

@@ -52,6 +52,7 @@ def same_value(driver_value, script_value):
     return abs(a - b) <= 1e-5 * max(abs(a), abs(b), 1e-300)
 
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("case", SCENES)
 def test_driver_flags_are_the_script_keys_with_the_scene_as_default(case):
     scene, module = load_scene(REPO / case)
@@ -80,6 +81,7 @@ def test_every_flag_sent_is_named_by_the_schema(case):
     assert [flag for flag in sent if not any(p.match(flag[1:]) for p in patterns)] == []
 
 
+@pytest.mark.freefem
 def test_3d_contact_points_follow_the_degree_by_default(tmp_path):
     """contact_qp 0 (the scene default) means 3 points per interface triangle for P1, 6 for P2."""
     for degree, points in ((1, 3), (2, 6)):

@@ -8,6 +8,8 @@ freefem/lib/core/sparse_solver.idp keeps Scotch on one thread."""
 import math
 import re
 
+import pytest
+
 from conftest import REPO
 
 DISK = "cases/disk_on_slab.toml"
@@ -43,6 +45,7 @@ def differences(a, b, path=()):
     return [] if (type(a) is type(b) and a == b) else [path]
 
 
+@pytest.mark.freefem
 def test_adaptive_runs_are_identical(run_scene):
     # P2 on NX = 20 with two adaptmesh steps: 1,652 then about 5,000 and 9,000 DOFs,
     # so the adapted steps are ordered by Scotch (AMF below a few thousand).

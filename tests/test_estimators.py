@@ -6,6 +6,8 @@ import pytest
 
 from conftest import run_freefem
 
+pytestmark = pytest.mark.freefem      # every test here starts FreeFEM (make test-fast leaves them out)
+
 
 def test_estimators_vanish_on_the_patch_test(run_scene):
     # Affine exact solution in the space: every residual is zero up to round-off.

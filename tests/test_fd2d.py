@@ -21,6 +21,7 @@ def disk24(module_scene, degree, theta):
     return module_scene(DISK, "mesh.nx=24", f"method.degree={degree}", f"method.theta={theta}")
 
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("degree", [1, 2])
 @pytest.mark.parametrize("theta", [1, 0, -1])
 def test_disk_on_slab_converges_and_balances(module_scene, degree, theta):
@@ -39,6 +40,7 @@ def test_disk_on_slab_converges_and_balances(module_scene, degree, theta):
     assert r["dofs_body1"] < 0.5 * r["dofs"]          # unused background DOFs never enter
 
 
+@pytest.mark.freefem
 def test_solution_does_not_depend_on_theta(module_scene):
     """Every theta gives a consistent method: at NX = 24, P2 the centre for theta = 1
     and 0 lies within 8.5e-5 and 2.2e-4 (relative) of theta = -1's (measured); a
@@ -48,6 +50,7 @@ def test_solution_does_not_depend_on_theta(module_scene):
         assert abs(centre_y(disk24(module_scene, 2, theta)) / reference - 1) < bound, f"theta = {theta}"
 
 
+@pytest.mark.freefem
 def test_centre_against_the_nx320_reference(run_scene):
     """The default method at NX = 80 against the curved P2 NX = 320 reference of
     make curved-study (results/curved_convergence.csv, reference_uy): 2.3e-4 relative
@@ -60,6 +63,7 @@ def test_centre_against_the_nx320_reference(run_scene):
     assert abs(centre_y(run) / reference - 1) < 5e-4
 
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("degree", [1, 2])
 @pytest.mark.parametrize("theta", [1, 0, -1])
 def test_eta4_is_the_contact_residual_of_the_pressure_table(module_scene, degree, theta):
@@ -72,6 +76,7 @@ def test_eta4_is_the_contact_residual_of_the_pressure_table(module_scene, degree
     assert run.results["estimator"]["eta4"] == pytest.approx(expected, rel=1e-11)
 
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("theta", [1, 0, -1])
 def test_eta1_of_p1_is_the_load_residual(module_scene, theta):
     """P1: div sigma = 0 on every element, so eta1^2 = sum h_K^2 |div sigma + f|^2 |K cap
@@ -81,6 +86,7 @@ def test_eta1_of_p1_is_the_load_residual(module_scene, theta):
     assert r["estimator"]["eta1"] == pytest.approx(r["h_max"] * 0.1 * math.sqrt(r["measures"]["body1"]), rel=1e-13)
 
 
+@pytest.mark.freefem
 def test_a_loose_tolerance_stops_on_the_same_solution(module_scene):
     """Newton stops only on an active set its last step kept: there the semi-smooth
     Newton iterate is the discrete solution, so newton_tol = 1e-2 gives the default's
@@ -98,6 +104,7 @@ def test_a_loose_tolerance_stops_on_the_same_solution(module_scene):
     assert loose.results["balance"]["balance_error"] < 1e-6
 
 
+@pytest.mark.freefem
 def test_round_off_floor_needs_two_stable_steps(run_scene):
     """Below the direct solver's round-off (newton_tol 1e-15, residual 2e-14) Newton
     stops on the round-off floor, after two steps on one active set: a looser
@@ -111,6 +118,7 @@ def test_round_off_floor_needs_two_stable_steps(run_scene):
     assert n["changed_measure"][-2:] == [0, 0]
 
 
+@pytest.mark.freefem
 def test_slab_interface_on_mesh_edges_is_handled(run_scene):
     # nx = 40: y = -0.25 lies on grid lines; nx = 42: it cuts the elements.
     on_edges = run_scene(DISK, "mesh.nx=40")
@@ -120,6 +128,7 @@ def test_slab_interface_on_mesh_edges_is_handled(run_scene):
     assert centre_y(on_edges) == pytest.approx(centre_y(cutting), rel=0.01)
 
 
+@pytest.mark.freefem
 def test_nitsche_dirichlet_line_reproduces_strong_bottom(run_scene):
     strong = run_scene(DISK, "mesh.nx=30")
     nitsche = run_scene(DISK, "mesh.nx=30", "body2.bottom_line=[-0.5, 0.0]")
@@ -128,6 +137,7 @@ def test_nitsche_dirichlet_line_reproduces_strong_bottom(run_scene):
     assert centre_y(nitsche) == pytest.approx(centre_y(strong), rel=1e-5)   # measured 2.5e-6
 
 
+@pytest.mark.freefem
 def test_tilted_cut_dirichlet_scene(run_scene):
     run = run_scene("cases/disk_on_tilted_slab.toml", "mesh.nx=30")
     r = run.results
@@ -137,6 +147,7 @@ def test_tilted_cut_dirichlet_scene(run_scene):
     assert r["contact"]["force_balance_error"] < 1e-6
 
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("stabilization", ["neighbour", "ghost"])
 def test_stabilizations_agree_with_plain_method(run_scene, module_scene, stabilization):
     plain = module_scene(DISK, "mesh.nx=30")
@@ -162,6 +173,7 @@ def test_stabilizations_agree_with_plain_method(run_scene, module_scene, stabili
     assert centre_y(stab) == pytest.approx(centre_y(plain), rel=0.02)
 
 
+@pytest.mark.freefem
 def test_auto_stabilization_keeps_theta1_coercive(run_scene, tmp_path):
     # theta = 1 at gamma0 = 1/10, NX = 80, P1 cut geometry: without stabilization the
     # symmetric method is not coercive on this cut mesh (Newton cycles: exit 3 with the
@@ -180,6 +192,7 @@ def test_auto_stabilization_keeps_theta1_coercive(run_scene, tmp_path):
     assert not (tmp_path / "plain" / "results.json").exists()
 
 
+@pytest.mark.freefem
 def test_auto_stabilization_is_none_for_nonpositive_theta(run_scene):
     run = run_scene(DISK, "mesh.nx=20", "method.theta=0", "output.estimators=false")
     assert run.results["cut"]["stabilization"] == "none"
@@ -202,6 +215,7 @@ def test_bad_fd_geometry_is_rejected(override, key):
     assert key in proc.stderr and DISK in proc.stderr and "Traceback" not in proc.stderr
 
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("stabilization", ["none", "neighbour", "ghost"])
 def test_sliver_cuts_are_dropped_not_fatal(run_scene, stabilization):
     # Slab top 1e-6 h above a grid line: cut ratios ~1e-13 (the crash case of a plain cut space).

@@ -11,6 +11,8 @@ import pytest
 
 from conftest import saved_run, tool_errors
 
+pytestmark = pytest.mark.freefem      # every test here starts FreeFEM (make test-fast leaves them out)
+
 DISK = "cases/disk_on_slab.toml"
 LADDER = (20, 40, 80)
 BOUNDS = {("h1", 1): 0.8, ("h1", 2): 1.2, ("l2", 1): 1.5, ("l2", 2): 1.5}

@@ -5,6 +5,8 @@ import math
 
 import pytest
 
+pytestmark = pytest.mark.freefem      # every test here starts FreeFEM (make test-fast leaves them out)
+
 DISK = "cases/disk_on_slab.toml"
 
 

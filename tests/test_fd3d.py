@@ -22,6 +22,7 @@ def ball8(module_scene, theta):
     return module_scene(BALL, "mesh.nx=8", f"method.theta={theta}")
 
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("theta", [1, 0, -1])
 def test_ball_on_slab_converges_and_balances(module_scene, theta):
     run = ball8(module_scene, theta)
@@ -48,6 +49,7 @@ def test_ball_on_slab_converges_and_balances(module_scene, theta):
     assert r["dofs_body1"] < 0.5 * r["dofs"]      # unused background DOFs never enter
 
 
+@pytest.mark.freefem
 def test_solution_does_not_depend_on_theta(module_scene):
     """Every theta gives a consistent method: at nx = 8 the centre for theta = 1 and 0
     lies within 6.6e-4 and 5.2e-4 (relative) of theta = -1's (measured); the theta term
@@ -57,6 +59,7 @@ def test_solution_does_not_depend_on_theta(module_scene):
         assert abs(centre_z(ball8(module_scene, theta)) / reference - 1) < bound, f"theta = {theta}"
 
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("theta", [1, 0, -1])
 def test_eta4_is_the_contact_residual_of_the_pressure_table(module_scene, theta):
     """eta4^2 = sum over the contact points of h_K w (p + sigma_n)^2 (fd3d/estimators.idp),
@@ -68,6 +71,7 @@ def test_eta4_is_the_contact_residual_of_the_pressure_table(module_scene, theta)
     assert run.results["estimator"]["eta4"] == pytest.approx(expected, rel=1e-11)
 
 
+@pytest.mark.freefem
 def test_gap_is_the_height_above_the_slab(module_scene):
     """The slab {z < -0.25} is flat: a contact point's gap is its height above the slab
     and its projection the point below it (contact_pressure.csv: 5e-13 measured, the
@@ -78,6 +82,7 @@ def test_gap_is_the_height_above_the_slab(module_scene):
     assert np.abs(s.proj_x - s.x).max() < 1e-12 and np.abs(s.proj_y - s.y).max() < 1e-12
 
 
+@pytest.mark.freefem
 def test_slab_top_cutting_the_elements_and_neighbour_stabilization(run_scene):
     # nx = 10: z = -0.25 cuts the cells (nx = 8: it lies on a grid plane)
     plain = run_scene(BALL, "mesh.nx=10")
@@ -91,6 +96,7 @@ def test_slab_top_cutting_the_elements_and_neighbour_stabilization(run_scene):
     assert centre_z(stab) == pytest.approx(centre_z(plain), rel=0.05)
 
 
+@pytest.mark.freefem
 def test_sliver_cuts_are_dropped_and_the_smallest_kept_ratio_reported(run_scene):
     # Slab top 1e-6 h above the grid plane z = -0.25 (nx = 8): cut ratios ~1e-6
     nx, shift = 8, 1e-6 / 8
@@ -104,6 +110,7 @@ def test_sliver_cuts_are_dropped_and_the_smallest_kept_ratio_reported(run_scene)
     assert sliver.results["measures"]["body2"] == pytest.approx(0.25 + shift, rel=1e-9)
 
 
+@pytest.mark.freefem
 def test_outputs_are_readable(module_scene):
     run = ball8(module_scene, -1)
     ball = meshio.read(run.folder / "body1.vtu")
@@ -128,6 +135,7 @@ def test_bad_3d_input_is_rejected(override, key):
     assert key in proc.stderr and BALL in proc.stderr and "Traceback" not in proc.stderr
 
 
+@pytest.mark.freefem
 def test_freefem_script_rejects_a_ball_outside_the_box(tmp_path):
     proc = subprocess.run(["FreeFem++", "-nw", "-v", "0", "freefem/fd_contact_3d.edp", "-Ddegree=1",
                            "-ball_cz", "0.4", "-outdir", str(tmp_path)],
@@ -136,6 +144,7 @@ def test_freefem_script_rejects_a_ball_outside_the_box(tmp_path):
     assert "INPUT ERROR" in proc.stdout + proc.stderr
 
 
+@pytest.mark.freefem
 def test_error_routine_measures_a_known_shift(run_scene, tmp_path):
     # A saved P2 run against itself shifted by a constant c: |c| |Omega_i|^(1/2) in L2 and H1.
     run = run_scene(BALL, "mesh.nx=4", "method.degree=2", "output.save_solution=true", "output.vtu=false")
@@ -153,6 +162,7 @@ def test_error_routine_measures_a_known_shift(run_scene, tmp_path):
     assert err["body1"]["volume_ref"] == pytest.approx(run.results["measures"]["body1"], rel=1e-9)
 
 
+@pytest.mark.freefem
 def test_neighbour_stabilization_rescues_theta_one(run_scene, tmp_path):
     # P2, theta = 1, h = 1/6 without stabilization: Newton does not converge in 30
     # iterations (badly cut elements spoil coercivity, results/fd3d_convergence.csv;
@@ -180,6 +190,7 @@ def error_tool(ref, run, tmp_path, *extra):
     return json.loads(out.read_text())
 
 
+@pytest.mark.freefem
 def test_error_routine_quadrature_path_matches_the_nested_one(run_scene, tmp_path):
     # Non-nested meshes (a graded reference) integrate the error with the coarse field
     # evaluated at the reference quadrature points (lifted to the coarse background,
@@ -205,6 +216,7 @@ def test_error_routine_quadrature_path_matches_the_nested_one(run_scene, tmp_pat
         assert shifted[body]["h1_abs"] == pytest.approx(expected, rel=1e-12)
 
 
+@pytest.mark.freefem
 def test_graded_background_solves_and_its_errors_are_measured(run_scene, tmp_path):
     # tetgen refines cube(5) toward the contact point (as the references' meshes):
     # every contact point must be read on the body spaces (FreeFEM's location in a
@@ -229,6 +241,7 @@ def test_graded_background_solves_and_its_errors_are_measured(run_scene, tmp_pat
         assert 0.01 < err[body]["h1_rel"] < 1.5 and err[body]["l2_rel"] < err[body]["h1_rel"]
 
 
+@pytest.mark.freefem
 def test_predictor_hands_over_from_above(run_scene):
     # P2, nx = 10: the gap-prefix predictor climbs until a trial set is larger than
     # the set its solution asks for, then semi-smooth Newton shrinks that set to the

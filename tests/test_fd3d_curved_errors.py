@@ -11,6 +11,8 @@ import pytest
 
 from tests.conftest import run_freefem, tool_errors
 
+pytestmark = pytest.mark.freefem      # every test here starts FreeFEM (make test-fast leaves them out)
+
 SHIFT = (1e-3, 0.0, -2e-3)
 
 

@@ -6,6 +6,8 @@ import meshio
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.freefem      # every test here starts FreeFEM (make test-fast leaves them out)
+
 BALL = "cases/ball_on_slab.toml"
 BALL_VOLUME = 4.0 / 3.0 * math.pi * 0.25 ** 3
 

@@ -18,6 +18,8 @@ import pytest
 
 from conftest import REPO
 
+pytestmark = pytest.mark.freefem      # every test here starts FreeFEM (make test-fast leaves them out)
+
 BALL = "lsBall(px, py, pz, 0.0, 0.0, 0.0, 0.25)"
 SLAB = "lsHalfSpace(px, py, pz, 0.0, 0.0, -0.25, 0.0, 0.0, 1.0)"
 FACES = {"ymin": 1, "xmax": 2, "ymax": 3, "xmin": 4, "zmin": 5, "zmax": 6}

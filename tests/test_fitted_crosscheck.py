@@ -7,6 +7,8 @@ import pytest
 from conftest import run_cli, run_freefem
 from driver.studies.fd2d import fitted_meshes
 
+pytestmark = pytest.mark.freefem      # every test here starts FreeFEM (make test-fast leaves them out)
+
 
 def freefem(script, *args):
     proc = run_freefem(script, *args)

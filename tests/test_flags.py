@@ -50,6 +50,7 @@ def test_generated_rule_files_are_current(script):
         "the flag rules are out of date with the schema: run `python3 -m driver readme` and commit them"
 
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("script", SCRIPTS)
 def test_every_flag_read_has_a_rule_and_declared_flags_have_the_schemas(script):
     rules = script_rules(script)
@@ -59,6 +60,7 @@ def test_every_flag_read_has_a_rule_and_declared_flags_have_the_schemas(script):
     assert {flag: rules.get(flag) for flag in declared} == declared
 
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("script, flag, key", [
     ("fd_contact_2d", "mu1", "body1.mu"), ("fd_contact_2d", "mu2", "body2.mu"),
     ("fd_contact_3d", "mu1", "body1.mu"), ("fd_contact_3d", "mu2", "body2.mu"),
@@ -121,6 +123,7 @@ REFUSED = [("fd_contact_2d", flag, value, message) for flag, value, message in [
 ]
 
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("script, flag, value, message", REFUSED)
 def test_direct_run_refuses_a_bad_value_naming_the_flag(script, flag, value, message, tmp_path):
     out = tmp_path / "out"
@@ -130,6 +133,7 @@ def test_direct_run_refuses_a_bad_value_naming_the_flag(script, flag, value, mes
     assert not out.exists()
 
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("script, args", [
     ("fd_contact_2d", ["-theta", ".5", "-active0", "5.", "-mass_eps", "+1E-3", "-rho", "1", "-threads", "256",
                        "-nx", "4000", "-adapt_max_dofs", "2147483647", "-contact_qp", "4", "-ordering", "scotch",
@@ -153,6 +157,7 @@ def test_driver_refuses_what_the_scripts_refuse(case, override, words):
         load_scene(REPO / case, [override])
 
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("lines, message", [
     ('argRule("x", "real >= abc");', "the rule of -x has the bound 'abc'"),
     ('argRule("x", "float");', "the rule of -x is 'float'"),

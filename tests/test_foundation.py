@@ -8,6 +8,8 @@ import pytest
 from conftest import relative_max_error, run_freefem
 from driver.runner import freefem_env
 
+pytestmark = pytest.mark.freefem      # every test here starts FreeFEM (make test-fast leaves them out)
+
 
 @pytest.mark.parametrize("degree", [1, 2])
 @pytest.mark.parametrize("theta", [1, 0, -1])

@@ -64,6 +64,7 @@ def sliver_pair(tmp_path, reference, name, stabilization):
     return plain, proc, perturbed
 
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("stabilization", ["neighbour", "ghost"])
 @pytest.mark.parametrize("name", ["sliver_shift", "grid_line"])
 def test_sliver_cuts_with_stabilization(tmp_path, reference, name, stabilization):
@@ -82,6 +83,7 @@ def test_sliver_cuts_with_stabilization(tmp_path, reference, name, stabilization
     assert perturbed["contact"]["force_balance_error"] < 1e-6
 
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("name", ["sliver_shift", "grid_line"])
 def test_sliver_cuts_without_stabilization_recorded(tmp_path, reference, name):
     plain, proc, perturbed = sliver_pair(tmp_path, reference, name, "none")
@@ -101,6 +103,7 @@ CONVERGING = [("gamma0_tiny", 1e-6), ("gamma0_huge", 1e-6), ("soft_disk", 1e-4),
               ("near_incompressible", 1e-6), ("initial_gap", 1e-6)]
 
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("name, balance", CONVERGING)
 def test_hard_scene_converges_bounded(tmp_path, name, balance):
     r = converged(tmp_path / "run", f"{HARD}/{name}.toml")
@@ -122,6 +125,7 @@ def test_hard_scene_converges_bounded(tmp_path, name, balance):
         assert r["gamma0"] == pytest.approx(0.005 * 0.5 * (1 / E1 + 1 / E2), rel=1e-12)
 
 
+@pytest.mark.freefem
 def test_theta1_large_gamma0_is_a_detected_failure(tmp_path):
     proc, results = driver_run(tmp_path / "run", f"{HARD}/theta1_large_gamma0.toml")
     assert proc.returncode == 3 and results is None
@@ -131,6 +135,7 @@ def test_theta1_large_gamma0_is_a_detected_failure(tmp_path):
     assert "coercivity" in json.loads((failed / "failure.json").read_text())["message"]
 
 
+@pytest.mark.freefem
 def test_load_too_small_is_a_detected_floating_body(tmp_path):
     proc, results = driver_run(tmp_path / "run", f"{HARD}/load_too_small.toml")
     assert proc.returncode == 3 and results is None
@@ -146,6 +151,7 @@ def test_gamma_scaling_with_a_nitsche_bottom_line_is_rejected():
     assert proc.returncode == 2 and "'method.gamma_scaling'" in proc.stderr
 
 
+@pytest.mark.freefem
 def test_newton_matrix_export_and_condition_estimate(tmp_path):
     from driver.studies.hard_cases import condition_estimate
 

@@ -25,8 +25,8 @@ exit 0
 
 @pytest.fixture
 def checkout(tmp_path):
-    shutil.copy(REPO / "Makefile", tmp_path)
-    shutil.copy(REPO / "requirements.txt", tmp_path)
+    for name in ("Makefile", "requirements.txt", "pyproject.toml"):
+        shutil.copy(REPO / name, tmp_path)
     return tmp_path
 
 
@@ -80,6 +80,7 @@ def test_the_venv_is_made_once_then_checked_without_starting_python(checkout):
     listed.write_text("")
     stamp.write_text(f".venv/bin/python\n{listed}\n")
     os.utime(requirements, (1e9, 1e9))
+    os.utime(checkout / "pyproject.toml", (1e9, 1e9))
     assert setup_python(checkout, python).returncode == 0
     assert started(checkout) == []
     # the venv's own interpreter counts as the same PYTHON

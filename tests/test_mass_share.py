@@ -11,9 +11,12 @@ is integrated on the curved cells, as the assembly does; the P1 cut left it open
 
 import json
 
+import pytest
 import numpy as np
 
 from tests.conftest import run_freefem
+
+pytestmark = pytest.mark.freefem      # every test here starts FreeFEM (make test-fast leaves them out)
 
 
 def closure(tmp_path, script, *args):

@@ -11,6 +11,8 @@ import pytest
 
 from conftest import REPO, run_freefem
 
+pytestmark = pytest.mark.freefem      # every test here starts FreeFEM (make test-fast leaves them out)
+
 BODY_FIELDS = {"displacement", "von_mises", "phi"}
 BODY1_CELL_FIELDS = {"contact_pressure", "contact_pressure_recovered", "cut_ratio"}
 

@@ -13,6 +13,7 @@ import pytest
 from tests.conftest import REPO, run_cli
 
 
+@pytest.mark.freefem
 def test_the_api_takes_a_dict_and_gives_dataframes_and_meshes(tmp_path):
     import driver as fdcontact     # the checkout's name for the package fdcontact
 
@@ -49,6 +50,7 @@ def test_a_scene_written_as_toml_reads_back_the_same(tmp_path):
         scene.write(path)     # never over an existing file
 
 
+@pytest.mark.freefem
 def test_the_literate_example_runs(tmp_path):
     proc = subprocess.run([sys.executable, str(REPO / "docs" / "examples" / "python_api.py"), str(tmp_path / "ex")],
                           cwd=tmp_path, capture_output=True, text=True,
@@ -57,6 +59,7 @@ def test_the_literate_example_runs(tmp_path):
     assert "refused (exit code 2)" in proc.stdout and "active contact points" in proc.stdout
 
 
+@pytest.mark.freefem
 def test_a_published_folder_runs_again_with_its_command(tmp_path):
     out = tmp_path / "r"
     proc = run_cli("run", "cases/disk_on_slab.toml", "--out", str(out), "--set", "mesh.nx=20")
@@ -69,6 +72,7 @@ def test_a_published_folder_runs_again_with_its_command(tmp_path):
     assert second["probes"] == first["probes"] and second["contact"]["max_pressure"] == first["contact"]["max_pressure"]
 
 
+@pytest.mark.freefem
 def test_results_say_where_they_came_from_and_in_what_units(tmp_path):
     out = tmp_path / "r"
     proc = run_cli("run", "cases/disk_on_slab.toml", "--out", str(out), "--set",

@@ -21,6 +21,8 @@ is below the round-off) makes the solver accept them; every rigid motion is held
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.freefem      # every test here starts FreeFEM (make test-fast leaves them out)
+
 Q, E1, NU1, E2, NU2 = 0.01, 1.0, 0.4, 2.0, 0.3
 
 BLOCK_2D = f"""

@@ -58,11 +58,13 @@ def assert_plotted(proc, folder, names):
         check_png(folder / name)
 
 
+@pytest.mark.freefem
 def test_plot_2d(run_2d):
     assert_plotted(plot(run_2d), run_2d, ["plot_deformed.png", "plot_pressure.png", "plot_newton.png"])
     assert not list(run_2d.glob(".plot-*")), "a temporary file was left behind"
 
 
+@pytest.mark.freefem
 def test_plot_3d_default_plane_and_chosen_plane(run_3d):
     # the ball touches the slab at (0, 0, -0.25): the default cut is y = 0
     assert_plotted(plot(run_3d), run_3d, ["plot_cut_y0.png", "plot_pressure.png", "plot_newton.png"])
@@ -71,6 +73,7 @@ def test_plot_3d_default_plane_and_chosen_plane(run_3d):
     check_png(run_3d / "plot_cut_x0.05.png")
 
 
+@pytest.mark.freefem
 def test_plot_reads_a_recovered_column_and_a_signed_pressure(run_2d, tmp_path):
     import pandas as pd
 
@@ -117,6 +120,7 @@ def rewrite_results(folder, **changes):
     (folder / "results.json").write_text(json.dumps(results))
 
 
+@pytest.mark.freefem
 def test_bad_folders_give_one_line_and_exit_2(run_2d, tmp_path):
     for name, (folder, words) in bad_folders(tmp_path, run_2d).items():
         before = sorted(p.name for p in folder.iterdir()) if folder.is_dir() else None
@@ -130,6 +134,7 @@ def test_bad_folders_give_one_line_and_exit_2(run_2d, tmp_path):
     assert not (tmp_path / "nowhere").exists()
 
 
+@pytest.mark.freefem
 def test_bad_planes(run_2d, run_3d):
     for folder, plane, words in [(run_2d, "y=0", "for 3D runs"), (run_3d, "w=1", "expected AXIS=VALUE"),
                                  (run_3d, "y=inf", "finite"), (run_3d, "z=3", "misses both bodies")]:

@@ -10,6 +10,8 @@ import pytest
 
 from conftest import run_freefem
 
+pytestmark = pytest.mark.freefem      # every test here starts FreeFEM (make test-fast leaves them out)
+
 # Points on the lower part of a sphere (3D, a Fibonacci spiral) or a circle (2D),
 # unit normals outward, weights and radii alternating, a Hertz-like pressure on the
 # cap below z (y) = -0.2 with a ripple that the fit averages.

@@ -57,6 +57,7 @@ def test_scene_name_cannot_leave_runs(tmp_path):
     assert not (REPO.parent / "escape").exists()
 
 
+@pytest.mark.freefem
 def test_out_with_quotes_and_semicolons_is_just_a_folder_name(tmp_path):
     out = tmp_path / "it's; touch PWNED; echo '"
     proc = run_cli("run", str(DISK), *SMALL, "--out", str(out), cwd=tmp_path)
@@ -65,6 +66,7 @@ def test_out_with_quotes_and_semicolons_is_just_a_folder_name(tmp_path):
     assert not (tmp_path / "PWNED").exists() and not (REPO / "PWNED").exists()
 
 
+@pytest.mark.freefem
 def test_direct_run_outdir_and_name_never_reach_a_shell(tmp_path):
     out = tmp_path / "a b'; touch PWNED; echo '"
     proc = run_freefem("fd_contact_2d.edp", "-Ddegree=1", "-nx", 12, "-estimators", 0, "-outdir", out)
@@ -102,6 +104,7 @@ def test_out_on_the_checkout_its_parents_or_home_is_refused(where, tmp_path):
     assert (REPO / ".git").exists() and (REPO / "freefem").is_dir()
 
 
+@pytest.mark.freefem
 def test_replacing_a_run_needs_the_flag_and_a_failed_run_leaves_it_intact(tmp_path):
     out = tmp_path / "R"
     assert run_cli("run", str(DISK), *SMALL, "--out", str(out)).returncode == 0
@@ -120,6 +123,7 @@ def test_replacing_a_run_needs_the_flag_and_a_failed_run_leaves_it_intact(tmp_pa
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
+@pytest.mark.freefem
 def test_a_failed_run_into_a_new_folder_writes_no_results(tmp_path):
     out = tmp_path / "R"
     proc = run_cli("run", str(DISK), *SMALL, "--set", "solver.newton_max=1", "--out", str(out))
@@ -128,6 +132,7 @@ def test_a_failed_run_into_a_new_folder_writes_no_results(tmp_path):
     assert not (tmp_path / "R.failed" / "results.json").exists()
 
 
+@pytest.mark.freefem
 def test_a_second_writer_to_the_same_folder_is_refused(tmp_path):
     out = tmp_path / "R"
     first = subprocess.Popen([sys.executable, "-m", "driver", "run", str(DISK), "--set", "mesh.nx=120",
@@ -144,6 +149,7 @@ def test_a_second_writer_to_the_same_folder_is_refused(tmp_path):
     assert json.loads((out / "results.json").read_text())["nx"] == 120
 
 
+@pytest.mark.freefem
 def test_relative_out_is_relative_to_the_working_folder(tmp_path):
     proc = run_cli("run", str(DISK), *SMALL, "--out", "rel", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
@@ -188,6 +194,7 @@ def test_a_full_disk_gives_one_line_and_no_results(tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.freefem
 def test_a_direct_run_that_cannot_write_its_results_fails(tmp_path):
     out = tmp_path / "out"
     proc = subprocess.run(["FreeFem++", "-nw", "-v", "0", "freefem/fd_contact_2d.edp", "-nx", "40",
@@ -198,6 +205,7 @@ def test_a_direct_run_that_cannot_write_its_results_fails(tmp_path):
     assert not (out / "fields.vtu").exists()
 
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
 def test_an_interrupted_run_stops_freefem_and_keeps_no_results(signum, tmp_path):
     out = tmp_path / "R"
@@ -222,6 +230,7 @@ def test_an_interrupted_run_stops_freefem_and_keeps_no_results(signum, tmp_path)
 
 # ---- direct FreeFEM runs are as strict as the driver ------------------------------------
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("args, message", [
     (["-thetaa", "1"], "unknown option '-thetaa'"),
     (["-gama0", "1"], "unknown option '-gama0'"),
@@ -239,6 +248,7 @@ def test_direct_2d_run_refuses_bad_options(args, message):
     assert "INPUT ERROR" in printed(proc) and message in printed(proc)
 
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("args, message", [
     (["-thetaa", "1"], "unknown option '-thetaa'"),
     (["-fix_az", "0.4"], "a fixing point lies outside body 1's submesh"),
@@ -249,12 +259,14 @@ def test_direct_3d_run_refuses_bad_options(args, message):
     assert proc.returncode == 2 and message in printed(proc)
 
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("script", ["fd_contact_2d.edp", "fd_contact_3d.edp", "contact_foundation_2d.edp"])
 def test_direct_run_refuses_a_degree_other_than_1_or_2(script):
     proc = run_freefem(script, "-Ddegree=3")
     assert proc.returncode != 0 and "-Ddegree must be 1 or 2" in printed(proc)
 
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("override, freefem_args", [
     ("body2.top=0.9", ["-slab_top", "0.9"]),
     ("body2.top=0.1", ["-slab_top", "0.1"]),

@@ -36,6 +36,7 @@ SHAPES = {
 }
 
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("name", sorted(SHAPES))
 def test_area_of_each_primitive_against_its_exact_value(tmp_path, run_scene, name):
     """The curved cut cells give a smooth shape's area within 1e-8 at h = 1/100
@@ -134,6 +135,7 @@ def gradient_foot_point(px, py, cx=0.0, cy=-0.3, a=0.4, b=0.15):
     return qx, qy
 
 
+@pytest.mark.freefem
 def test_contact_projection_is_the_closest_point_on_an_ellipse(tmp_path, run_scene):
     """Pi(x) (contact_pressure.csv proj_x, proj_y) against a closest-point computation on
     the exact ellipse, for the active points: measured max 4.8e-11 (51 points); the
@@ -174,6 +176,7 @@ allow_unbalanced = true      # the tilted contact pushes the disk sideways into 
 """
 
 
+@pytest.mark.freefem
 def test_rotated_body_2_projects_on_its_closest_point(tmp_path, run_scene):
     """A rotated body 2 (its level set is evaluated at expressions: finite differences,
     curved-cell roots, so each rotated coordinate is parenthesized): Pi(x) is the
@@ -214,6 +217,7 @@ gamma0 = 1.0
 """
 
 
+@pytest.mark.freefem
 def test_punch_held_on_a_box_face_by_a_prescribed_displacement(run_scene):
     """cases/punch.toml: the top face moves by exactly -0.005 (strong), the reaction of that
     support balances the contact force (no body force), the punch is not floating."""
@@ -229,6 +233,7 @@ def test_punch_held_on_a_box_face_by_a_prescribed_displacement(run_scene):
     assert r["balance"]["balance_error"] < 1e-8
 
 
+@pytest.mark.freefem
 def test_punch_held_by_nitsche_on_a_cut_part(tmp_path, run_scene):
     """The same punch held on its top edge inside a region (a Nitsche hold): the top
     follows u_D = -0.005 to the Nitsche consistency error, reactions balance."""
@@ -241,6 +246,7 @@ def test_punch_held_by_nitsche_on_a_cut_part(tmp_path, run_scene):
     assert r["reactions"]["body1"][1] == pytest.approx(-force, rel=1e-7)
 
 
+@pytest.mark.freefem
 def test_traction_on_a_box_face_and_on_a_cut_part(tmp_path, run_scene):
     """A traction (0, -q) on the punch's top face (box face ymax, width 0.3 inside the
     body) is carried by the contact: force = q 0.3; on the upper cut boundary of a disk
@@ -258,6 +264,7 @@ def test_traction_on_a_box_face_and_on_a_cut_part(tmp_path, run_scene):
     assert cut.results["balance"]["balance_error"] < 1e-6
 
 
+@pytest.mark.freefem
 def test_ring_reports_its_probes_and_exact_area(run_scene):
     run = run_scene("cases/ring_on_slab.toml", *QUIET, "mesh.nx=60")
     r = run.results
@@ -267,6 +274,7 @@ def test_ring_reports_its_probes_and_exact_area(run_scene):
     assert r["probes"]["ring_top"][1] < r["probes"]["ring_bottom"][1] < 0    # the ring is squeezed
 
 
+@pytest.mark.freefem
 def test_hertz_cylinders_on_a_coarse_adaptive_run(run_scene):
     """cases/hertz_cylinders.toml with three adaptation steps (the shipped scene uses four)
     against Hertz: half-width within 1 % of a (measured -0.35 %), total contact force
@@ -294,6 +302,7 @@ def test_hertz_cylinders_on_a_coarse_adaptive_run(run_scene):
     assert error(zone.pressure) < 0.10
 
 
+@pytest.mark.freefem
 def test_gmsh_outline_body(run_scene):
     run = run_scene("cases/cam_on_slab.toml", *QUIET, "mesh.nx=50")
     assert run.results["measures"]["body1_exact"] > 0.15
@@ -340,6 +349,7 @@ def test_gmsh_geometry_that_runs_programs_is_refused(tmp_path):
     assert not (tmp_path / "PWNED").exists() and not (REPO / "PWNED").exists()
 
 
+@pytest.mark.freefem
 def test_reactions_per_support_add_up_to_each_body(run_scene):
     """results.json reactions.by_support: the punch's top face, and the slab held on the
     box bottom and by Nitsche on both ends of its top (two regions). The supports of a
@@ -361,6 +371,7 @@ def test_reactions_per_support_add_up_to_each_body(run_scene):
     assert np.abs(total).max() < 1e-8 * abs(r["reactions"]["body1"][1])
 
 
+@pytest.mark.freefem
 def test_held_body_touching_nothing_carries_its_load_by_its_hold(run_scene):
     """A clamped punch 0.005 above the slab with its own weight: nothing touches, each
     body's holds carry its load, and the balance (relative to the load, not to the
@@ -374,6 +385,7 @@ def test_held_body_touching_nothing_carries_its_load_by_its_hold(run_scene):
     assert r["reactions"]["body2"] == pytest.approx([-0.1 * r["measures"]["body2"], 0.1 * r["measures"]["body2"]], rel=1e-10)
 
 
+@pytest.mark.freefem
 def test_ellipse_in_an_arch_is_held_by_the_contact_alone(run_scene):
     """cases/ellipse_on_arch.toml (a difference of shapes as body 2, no pins): the
     cradle carries the ellipse's weight without pins (mass term under the gate), the
@@ -388,6 +400,7 @@ def test_ellipse_in_an_arch_is_held_by_the_contact_alone(run_scene):
     assert r["probes"]["centre"][1] < 0
 
 
+@pytest.mark.freefem
 def test_a_non_square_box_keeps_its_elements_square(run_scene):
     """mesh.nx counts the elements along x; y gets as many as keep them as tall as wide
     (box 1 x 0.8 at nx = 20: 20 x 16 squares, 640 triangles)."""

@@ -12,6 +12,7 @@ from tests.conftest import REPO, run_cli
 QUIET = ("output.vtu=false", "output.estimators=false", "output.csv=false")
 
 
+@pytest.mark.freefem
 def test_rounded_cube_volume_and_balance(run_scene):
     """The exact volume of a box with rounded edges (Steiner's formula) reaches
     results.json; the P1 level-set polyhedron of this coarse mesh (h = 0.077, about the
@@ -27,6 +28,7 @@ def test_rounded_cube_volume_and_balance(run_scene):
     assert r["contact"]["force_on_body1"][2] == pytest.approx(0.1 * r["measures"]["body1"], rel=1e-6)
 
 
+@pytest.mark.freefem
 def test_sphere_on_sphere_balances_without_pins(run_scene, tmp_path):
     """A ball on a ball without pins: the mass term holds the rigid motions and carries
     under 1e-6 of the load (the gate); with pins they would carry 0.25 %."""
@@ -47,6 +49,7 @@ def test_default_3d_scene_module_is_the_generated_one():
     assert proc.stdout == (REPO / "freefem/lib/fd3d/scene_default.idp").read_text()
 
 
+@pytest.mark.freefem
 def test_reactions_per_support_add_up_to_each_body(run_scene):
     """results.json reactions.by_support in 3D: the slab held on the box bottom (z only),
     on the box side xmin (every component) and by Nitsche on a region of its top; the
@@ -63,6 +66,7 @@ def test_reactions_per_support_add_up_to_each_body(run_scene):
     assert body2[2] == pytest.approx(weight, rel=1e-6)
 
 
+@pytest.mark.freefem
 def test_held_body_touching_nothing_carries_its_load_by_its_hold(run_scene):
     """The ball 0.05 above the slab, held by Nitsche on its top cap: nothing touches, the
     cap's hold carries the ball's weight and the run passes the balance gate."""
@@ -74,6 +78,7 @@ def test_held_body_touching_nothing_carries_its_load_by_its_hold(run_scene):
     assert r["reactions"]["body1"][2] == pytest.approx(0.1 * r["measures"]["body1"], rel=1e-8)
 
 
+@pytest.mark.freefem
 def test_error_tools_work_on_shape_tree_scenes(run_scene, tmp_path):
     """The error tools read a saved run's own level sets, so they measure any scene: a
     run against itself with its x-displacement shifted by c has L2 error |c| |body|^(1/2)

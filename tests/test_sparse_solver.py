@@ -6,7 +6,11 @@ solver options on whole runs of the disk on slab (P2, NX = 80, a few seconds eac
 import json
 import re
 
+import pytest
+
 from conftest import run_freefem
+
+pytestmark = pytest.mark.freefem      # every test here starts FreeFEM (make test-fast leaves them out)
 
 PLUGIN_CHECK = r"""
 load "freefem/plugins/contact_mumps"

@@ -67,6 +67,7 @@ def read_table(folder, name):
     return pd.read_csv(Path(folder) / f"sweep_{name}.csv")
 
 
+@pytest.mark.freefem
 def test_two_workers_give_the_rows_of_runs_one_by_one(tmp_path):
     """4 points (theta x gamma0) on 2 workers == the same points run one by one, in order."""
     from driver.sweep import load_sweep, points_of, scene_task
@@ -99,6 +100,7 @@ def test_two_workers_give_the_rows_of_runs_one_by_one(tmp_path):
     assert len(attempts(tmp_path)) == 4
 
 
+@pytest.mark.freefem
 def test_a_killed_worker_loses_no_row_and_its_point_is_retried(tmp_path):
     """SIGKILL the worker process running a point after some rows are stored."""
     path = write_sweep(tmp_path, "kill", {"mesh.nx": [12, 14, 16, 18, 20]}, debug={"sleep_s": 1.5})
@@ -127,6 +129,7 @@ def test_a_killed_worker_loses_no_row_and_its_point_is_retried(tmp_path):
     assert sum(counts.values()) == 6
 
 
+@pytest.mark.freefem
 def test_failures_are_rows_and_a_point_that_keeps_killing_its_worker_is_bounded(tmp_path):
     """A Newton failure (exit 3) is a row, not a retry; a point whose task kills its worker
     every time is retried --max-retries times, then stored as a KilledWorker row."""
@@ -145,6 +148,7 @@ def test_failures_are_rows_and_a_point_that_keeps_killing_its_worker_is_bounded(
     assert 1 <= counts[table.hash[0]] <= 3 and 1 <= counts[table.hash[1]] <= 3
 
 
+@pytest.mark.freefem
 def test_interrupted_sweep_resumes_running_each_point_once(tmp_path):
     """Ctrl-C after the first row: running points finish, the rest run on restart, once each."""
     path = write_sweep(tmp_path, "resume", {"mesh.nx": [12, 14, 16, 18, 20, 22]}, debug={"sleep_s": 1.5})

@@ -9,6 +9,8 @@ the mass regularization is relative to muStar.
 
 import pytest
 
+pytestmark = pytest.mark.freefem      # every test here starts FreeFEM (make test-fast leaves them out)
+
 S = 2.1e11
 FAST_2D = ["mesh.nx=20", "method.degree=1", "output.vtu=false", "output.estimators=false"]
 

@@ -142,6 +142,7 @@ def test_a_tiny_gmsh_size_is_refused_before_gmsh_starts(tmp_path):
     one_error(proc, 2, "size", "edges")
 
 
+@pytest.mark.freefem
 def test_plot_reads_only_files_inside_the_run_folder(tmp_path):
     (tmp_path / "outside.csv").write_text("x,y,pressure,weight\n0,0,1,1\n")
     run = tmp_path / "run"
@@ -169,6 +170,7 @@ def test_a_folder_that_only_looks_like_an_old_run_is_not_removed(tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["command.txt", "freefem.log", "precious.txt", "scene.json"]
 
 
+@pytest.mark.freefem
 def test_a_kept_failure_is_never_replaced(tmp_path):
     path = scene(tmp_path)
     out = tmp_path / "r"
@@ -199,6 +201,7 @@ def test_an_out_name_too_long_is_bad_input(tmp_path):
     one_error(proc, 2, "300 bytes")
 
 
+@pytest.mark.freefem
 def test_a_killed_driver_leaves_no_freefem_and_its_folder_becomes_a_failure(tmp_path):
     """SIGKILL of the driver: FreeFEM dies with it (no orphan writing into the folder), and
     the next run into the same --out retires the stale staging folder as OUT.failed."""
@@ -239,6 +242,7 @@ def freefem_writing(staging):
     return False
 
 
+@pytest.mark.freefem
 def test_a_failed_run_keeps_no_partial_output(tmp_path):
     """Under a file-size limit FreeFEM dies (SIGXFSZ) in the middle of a VTU: the failure folder
     keeps the inputs and the log, no result file."""
@@ -259,6 +263,7 @@ def test_a_failed_run_keeps_no_partial_output(tmp_path):
 
 # ---- limits before work ------------------------------------------------------------------
 
+@pytest.mark.freefem
 @pytest.mark.parametrize("override,words", [
     ("limits.time_s=0.2", ("limits.time_s",)),
     ("limits.memory_mb=20", ("20 MiB", "limits.memory_mb")),
@@ -270,6 +275,7 @@ def test_freefem_runs_within_the_scene_limits(tmp_path, override, words):
     assert not (tmp_path / "r").exists() and (tmp_path / "r.failed" / "failure.json").is_file()
 
 
+@pytest.mark.freefem
 def test_a_process_memory_limit_is_named_when_freefem_dies_of_it(tmp_path):
     def limited():
         resource.setrlimit(resource.RLIMIT_AS, (700 * 2 ** 20, 700 * 2 ** 20))
@@ -332,6 +338,7 @@ def test_deeply_nested_toml_is_bad_input(tmp_path):
     one_error(run_cli("scene-module", str(path)), 2, "nested")
 
 
+@pytest.mark.freefem
 def test_a_quoted_override_value_keeps_its_spaces_and_equals(tmp_path):
     proc = run_cli("run", str(scene(tmp_path)), "--out", str(tmp_path / "r"),
                    "--set", 'scene.description="load b=5 kN" mesh.nx=12')

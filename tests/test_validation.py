@@ -62,6 +62,7 @@ def test_both_material_forms_rejected():
     assert proc.returncode == 2 and "'material'" in proc.stderr and "not both" in proc.stderr
 
 
+@pytest.mark.freefem
 def test_freefem_script_error_is_reported(tmp_path):
     broken = tmp_path / "broken.edp"
     source = (REPO / "freefem" / "contact_foundation_2d.edp").read_text()
@@ -77,6 +78,7 @@ def test_freefem_script_error_is_reported(tmp_path):
     assert not out.exists() and (tmp_path / "run.failed" / "freefem.log").is_file()
 
 
+@pytest.mark.freefem
 def test_newton_failure_is_reported(tmp_path):
     proc = run_with("solver.newton_max=2", tmp_path=tmp_path)
     assert proc.returncode == 3
@@ -86,6 +88,7 @@ def test_newton_failure_is_reported(tmp_path):
     assert not (failed / "results.json").exists() and (failed / "failure.json").is_file()
 
 
+@pytest.mark.freefem
 def test_freefem_direct_input_check():
     # The scripts check their own parameters when run directly, without the driver.
     proc = run_freefem("contact_foundation_2d.edp", "-gamma0", -1, "-outdir", "runs/test-direct")
