@@ -15,7 +15,7 @@ from pathlib import Path
 from . import gmsh_input
 from .errors import SceneError
 from .materials import young_from_lame
-from .scene import SCENE_HEADER
+from .header import SCENE_HEADER
 from .schema import (ADAPT_SCHEMA, Field, FreeFemFlags, TableList, at_least, open_interval,
                            positive, put_declared)
 

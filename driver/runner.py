@@ -27,22 +27,18 @@ import time
 from pathlib import Path
 
 from .errors import DriverError, FreeFemError, NewtonError, SceneError
+from .paths import FREEFEM_DIR, IN_CHECKOUT, REPO
+from .plugins import ensure_plugins
 from .resources import available_memory_mb, check_fits
 
-PACKAGE = Path(__file__).resolve().parent
-# The folder that holds freefem/ (the scripts FreeFEM runs from there) and cases/: the
-# checkout's root, or the installed package itself (pip install: package data).
-REPO = PACKAGE.parent if (PACKAGE.parent / "freefem").is_dir() else PACKAGE
-IN_CHECKOUT = REPO != PACKAGE
-FREEFEM_DIR = REPO / "freefem"
 TOOLS_DIR = FREEFEM_DIR / "tools"     # error measures and cross-checks (run_freefem_tool)
-PLUGIN_DIR = "/usr/lib/freefem++"
+FREEFEM_PLUGIN_DIR = "/usr/lib/freefem++"   # FreeFEM's own plugins (Debian's libfreefem++)
 
 
 # What the driver sets in FreeFEM's environment: Debian's binary looks for its plugins in
 # the wrong folder; one BLAS thread, as FreeFEM phases are timed with CPU clock() (see
 # freefem/lib/core/results.idp).
-FREEFEM_ENV = {"FF_LOADPATH": PLUGIN_DIR, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
+FREEFEM_ENV = {"FF_LOADPATH": FREEFEM_PLUGIN_DIR, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
                "MKL_NUM_THREADS": "1"}
 
 
@@ -356,8 +352,6 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
     if not script.is_file():
         raise SceneError(f"{scene['_source']}: FreeFEM script not found: {script}")
     binary = freefem_binary()
-    from .plugins import ensure_plugins
-
     ensure_plugins()
     probe_args = module.freefem_args(scene)
     if out_dir:

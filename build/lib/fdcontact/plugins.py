@@ -17,7 +17,7 @@ import tempfile
 from pathlib import Path
 
 from .errors import FreeFemError
-from .runner import FREEFEM_DIR
+from .paths import FREEFEM_DIR
 
 PLUGIN_DIR = FREEFEM_DIR / "plugins"
 

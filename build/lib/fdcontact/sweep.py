@@ -45,7 +45,7 @@ from pathlib import Path
 
 from .errors import DriverError, SceneError
 from .progress import bar as progress_bar
-from .runner import PACKAGE, REPO
+from .paths import PACKAGE, REPO
 from .scene import toml_literal
 
 RESULTS_DIR = REPO / "results"
@@ -218,7 +218,8 @@ def value_identity(value):
 
 def load_sweep(path):
     """Read and expand a sweep file; every point is validated as a scene before anything runs."""
-    from .scene import load_scene, parse_toml, read_text_file, safe_name
+    from .header import safe_name
+    from .scene import load_scene, parse_toml, read_text_file
 
     path = Path(path)
     source = str(path)
