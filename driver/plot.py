@@ -424,12 +424,18 @@ def draw_pieces(ax, pieces, norm, cmap):
     return image
 
 
+# The von Mises colour range ends at this percentile of the nodal values: a few points of
+# badly cut elements carry stresses far above the rest (their polynomial extended over the
+# whole element), which would otherwise set the scale; the colour bar marks the cut (extend).
+VM_PERCENTILE = 99.0
+
+
 def vm_norm(pieces):
     from matplotlib.colors import Normalize
 
     values = np.concatenate([p.vm[np.unique(p.tris)] for p in pieces if len(p.tris)] or [np.zeros(1)])
     values = values[np.isfinite(values)]
-    top = float(values.max()) if len(values) else 1.0
+    top = float(np.percentile(values, VM_PERCENTILE)) if len(values) else 1.0
     return Normalize(vmin=0.0, vmax=top if top > 0 else 1.0)
 
 
@@ -582,7 +588,8 @@ def section_panels(run, pieces, norm, cmap, contact, zoom, contact_label, marker
     if contact is not None:
         axes[-1].legend(loc="upper right", fontsize=8)
     if image is not None:
-        fig.colorbar(image, ax=list(axes), label=f"von Mises stress [{run.stress}]", shrink=0.9)
+        fig.colorbar(image, ax=list(axes), label=f"von Mises stress [{run.stress}] (scale to the "
+                     f"{VM_PERCENTILE:g}th percentile)", shrink=0.9, extend="max")
     return fig
 
 
@@ -675,7 +682,6 @@ def figure_pressure_2d(run, frame, note):
     ax.axhline(0.0, color="k", lw=0.5)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(f"{PRESSURE_LABEL} [{run.stress}]")
-    ax.legend(fontsize=8)
     lines = [f"{int(active.sum())} active of {len(frame)} points"]
     if "weight" in frame.columns:
         force = float((frame["weight"] * frame["pressure"]).sum())
@@ -685,9 +691,16 @@ def figure_pressure_2d(run, frame, note):
         lines.append(f"active length {contact['active_measure']:.4g} [{run.length}]")
     if note:
         lines.append(note)
-    ax.text(0.01, 0.98, "\n".join(lines), transform=ax.transAxes, va="top", fontsize=8)
+    side_panel(ax, lines)
     title(fig, run, f"{PRESSURE_LABEL} along the contact")
     return save(fig, run, "plot_pressure.png")
+
+
+def side_panel(ax, lines):
+    """The legend and the information lines to the right of the plot, one above the other,
+    so that neither covers the curves or the other."""
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
+    ax.text(1.02, 0.45, "\n".join(lines), transform=ax.transAxes, va="top", ha="left", fontsize=8)
 
 
 def newton_history(run):
@@ -719,20 +732,16 @@ def figure_newton(run, history):
     ax1.set_ylabel("residual (relative) [1]")
     ax1.legend(fontsize=8)
     ax1.grid(True, which="both", alpha=0.3)
-    floor = None
+    positives = [v for v in (*active, *changed) if v > 0]
     for values, style, label in ((active, "s-", f"active {measure}"),
                                  (changed, "^-", f"{measure} that changed side")):
-        if not values:
-            continue
-        v = np.asarray(values, dtype=float)
-        pos = v > 0
-        if pos.any():
-            ax2.semilogy(iters[:len(v)][pos], v[pos], style, label=label)
-            low = v[pos].min()
-            floor = low if floor is None else min(floor, low)
-    zeros = [i for i, v in zip(iters, changed) if v == 0]
-    if zeros and floor is not None:
-        ax2.semilogy(zeros, [floor / 10] * len(zeros), "x", color="C1", ms=8, label="no change (0)")
+        if values:
+            ax2.plot(iters[:len(values)], values, style, label=label)
+    if positives:
+        # logarithmic above the smallest positive measure, linear below it: a step where
+        # nothing changed side sits at 0 on the axis, not at an invented small value
+        ax2.set_yscale("symlog", linthresh=min(positives), linscale=0.5)
+        ax2.set_ylim(bottom=0)
     ax2.set_ylabel(f"contact {measure} [{unit}]")
     ax2.set_xlabel("Newton iteration")
     ax2.xaxis.get_major_locator().set_params(integer=True)
@@ -891,14 +900,17 @@ def figure_pressure_3d(run, frame, note):
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 5.4), layout="constrained")
     if (~active).any():
         ax1.scatter(s[~active, 0], s[~active, 1], s=4, c="0.75", label="inactive points")
-    image = ax1.scatter(s[active, 0], s[active, 1], s=9, c=p[active], cmap="viridis", vmin=0,
-                        label="active points")
+    recovered = recovered_columns(window)
+    colour = window[recovered[0]].to_numpy() if recovered else p
+    what = f"recovered ({recovered[0]})" if recovered else "raw"
+    image = ax1.scatter(s[active, 0], s[active, 1], s=9, c=colour[active], cmap="viridis", vmin=0,
+                        label=f"active points, coloured by the {what} pressure")
     ax1.set_aspect("equal")
     ax1.set_xlabel(run.axis(labels[0]))
     ax1.set_ylabel(run.axis(labels[1]))
     ax1.set_title("projected on the plane normal to the contact force n = (" +
                   ", ".join(f"{c:.3g}" for c in n) + ")", fontsize=9)
-    ax1.legend(fontsize=8, loc="upper right")
+    ax1.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=1)
     fig.colorbar(image, ax=ax1, label=f"{PRESSURE_LABEL} [{run.stress}]", shrink=0.9)
     if centre is not None:
         c2 = np.array([centre @ e1, centre @ e2])
@@ -912,14 +924,20 @@ def figure_pressure_3d(run, frame, note):
         ax2.set_xlabel(f"distance from the pressure centre (red +) in that plane [{run.length}]")
     ax2.set_ylabel(f"{PRESSURE_LABEL} [{run.stress}]")
     ax2.axhline(0.0, color="k", lw=0.5)
-    ax2.legend(fontsize=8)
     lines = [f"{int((frame['active'] > 0).sum())} active of {len(frame)} points"]
+    if recovered and np.nanmax(colour) > 0:
+        # the axis follows the recovered pressure; raw values above it are counted, not drawn
+        top = 1.5 * float(np.nanmax(colour))
+        ax2.set_ylim(-0.05 * top, top)
+        above = int((p > top).sum())
+        if above:
+            lines.append(f"{above} raw values above the axis (largest {p.max():.4g})")
     if "weight" in frame.columns:
         force = float((frame["weight"] * frame["pressure"]).sum())
         lines.append(f"integral of p dA = {force:.4g} [force]")
     if note:
         lines.append(note)
-    ax2.text(0.99, 0.98, "\n".join(lines), transform=ax2.transAxes, va="top", ha="right", fontsize=8)
+    side_panel(ax2, lines)
     title(fig, run, f"{PRESSURE_LABEL} on the contact surface")
     return save(fig, run, "plot_pressure.png")
 

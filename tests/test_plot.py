@@ -186,3 +186,19 @@ def test_parse_plane():
     for text in ("y", "y=", "w=1", "y=nan", "y=1=2"):
         with pytest.raises(RunFolderError):
             parse_plane(text)
+
+
+def test_the_stress_colour_range_ignores_a_few_cut_cell_peaks():
+    """vm_norm ends the colour range at the 99th percentile of the nodal values: one node of
+    1000 at 50 times the rest does not set the scale."""
+    from driver.plot import VM_PERCENTILE, Piece, vm_norm
+
+    k = np.arange(333)
+    xy = np.zeros((999, 2))
+    xy[3 * k], xy[3 * k + 1], xy[3 * k + 2] = np.c_[k, 0 * k], np.c_[k + 1, 0 * k], np.c_[k, 0 * k + 1]
+    vm = np.linspace(0.0, 1.0, 999)
+    vm[17] = 50.0
+    piece = Piece("body 1", xy, np.arange(999).reshape(333, 3), vm, np.zeros((0, 2), int))
+    assert VM_PERCENTILE == 99.0
+    assert vm_norm([piece]).vmax == pytest.approx(np.percentile(vm, 99.0))
+    assert vm_norm([piece]).vmax < 1.0
