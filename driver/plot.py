@@ -450,8 +450,8 @@ def zoom_box(centre, extent, h):
 
 
 def contact_frame(run):
-    """contact_pressure.csv with pressure positive in compression (foundation runs and older
-    fictitious-domain runs wrote it <= 0), or None when the run wrote none."""
+    """contact_pressure.csv with pressure positive in compression (every script writes it so;
+    runs of earlier versions wrote it <= 0), or None when the run wrote none."""
     filename = next((f for k, f in run.outputs.items() if "pressure" in k and str(f).endswith(".csv")),
                     "contact_pressure.csv")
     if not run.has_output(filename):
@@ -459,7 +459,7 @@ def contact_frame(run):
     coords = ["x", "y"] + (["z"] if run.dim == 3 else [])
     frame = read_csv(run, filename, coords + ["pressure"])
     note = None
-    if run.script == "contact_foundation_2d" or (frame["pressure"].max() <= 0 < -frame["pressure"].min()):
+    if frame["pressure"].max() <= 0 < -frame["pressure"].min():
         frame["pressure"] = -frame["pressure"]
         for column in recovered_columns(frame):
             frame[column] = -frame[column]

@@ -107,3 +107,21 @@ def test_a_wheel_ships_the_scripts_the_plugins_sources_and_the_command(tmp_path)
         assert name in names, name
     entry = next(n for n in names if n.endswith("entry_points.txt"))
     assert "fdcontact = fdcontact.cli:main" in zipfile.ZipFile(wheel).read(entry).decode()
+
+
+@pytest.mark.freefem
+@pytest.mark.parametrize("case, overrides", [
+    ("cases/square_slip_separation.toml", ["mesh.nx=8"]),
+    ("cases/disk_on_slab.toml", ["mesh.nx=16", "method.degree=1"]),
+    ("cases/ball_on_slab.toml", ["mesh.nx=6"]),
+])
+def test_every_script_writes_the_pressure_positive_in_compression(tmp_path, case, overrides):
+    import pandas as pd
+
+    out = tmp_path / "r"
+    proc = run_cli("run", case, "--out", str(out), *[a for o in overrides for a in ("--set", o)])
+    assert proc.returncode == 0, proc.stderr
+    pressure = pd.read_csv(out / "contact_pressure.csv")["pressure"]
+    results = json.loads((out / "results.json").read_text())
+    assert pressure.min() >= 0 and pressure.max() > 0
+    assert pressure.max() == pytest.approx(results["contact"]["max_pressure"], rel=1e-9)

@@ -57,7 +57,7 @@ def square_pressure_plot():
         raise DriverError("the square scene did not run; no plot made")
     samples = pd.read_csv(Path(folder) / "contact_pressure.csv").sort_values("x")
     fig, ax = plt.subplots(figsize=(7, 3.6))
-    ax.plot(samples["x"], -samples["pressure"], "-", color="C3", label="contact pressure  -sigma_n")
+    ax.plot(samples["x"], samples["pressure"], "-", color="C3", label="contact pressure  -sigma_n")
     ax.set_xlabel("x on the contact boundary y = 0")
     ax.set_ylabel("pressure")
     ax2 = ax.twinx()
