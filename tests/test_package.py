@@ -4,6 +4,7 @@ a wheel ships (FreeFEM scripts, plugins' sources, scenes, the console script).""
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -95,8 +96,15 @@ def test_results_say_where_they_came_from_and_in_what_units(tmp_path):
 
 
 def test_a_wheel_ships_the_scripts_the_plugins_sources_and_the_command(tmp_path):
+    # built from a copy of the checkout's tracked files: setuptools writes build/ and
+    # *.egg-info beside the sources it builds
+    files = subprocess.run(["git", "-C", str(REPO), "ls-files"], capture_output=True, text=True).stdout.split()
+    source = tmp_path / "src"
+    for name in files:
+        (source / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(REPO / name, source / name)
     proc = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q",
-                           "-w", str(tmp_path), str(REPO)], capture_output=True, text=True)
+                           "-w", str(tmp_path), str(source)], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-2000:]
     wheel = next(tmp_path.glob("fdcontact-*.whl"))
     names = set(zipfile.ZipFile(wheel).namelist())
