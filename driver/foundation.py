@@ -34,7 +34,9 @@ SCHEMA = {
                      doc="gmsh .geo file (kind = gmsh), relative to the scene"),
     },
     "mesh": {
-        "nx": Field("int", flag="nx", default=32, check=positive, doc="elements per unit length (h = 1/nx)"),
+        "nx": Field("int", flag="nx", default=32, check=positive,
+                    doc="elements across the box's width, as in the two-body scripts (h = width/nx; a gmsh "
+                        "geometry is meshed at its width/nx)"),
     },
     "material": {
         "E": Field("float", derived="E nu", default=None, check=positive, unit="stress",
@@ -202,7 +204,8 @@ def prepare_mesh(scene, workdir, run_command):
         return ""
     where = f"{scene['_source']}: key 'geometry.geo'"
     records = gmsh_input.read_geo(Path(geo["geo_path"]), where)
-    msh = gmsh_input.mesh_geo(records, 2, 1.0 / scene["mesh"]["nx"], where, Path(workdir) / "mesh.msh",
+    width = gmsh_input.geo_extent(records, axis=0)
+    msh = gmsh_input.mesh_geo(records, 2, width / scene["mesh"]["nx"], where, Path(workdir) / "mesh.msh",
                               scene["limits"]["gmsh_s"])
     return str(msh)
 

@@ -402,11 +402,11 @@ def geo_text(records):
     return "\n".join(lines) + "\n"
 
 
-def geo_extent(records):
-    """The largest side of the box holding the .geo's points."""
+def geo_extent(records, axis=None):
+    """The largest side of the box holding the .geo's points (or its side along one axis)."""
     points = [payload[1] for kind, payload in records if kind == "Point"]
     spans = [max(p[i] for p in points) - min(p[i] for p in points) for i in range(3)]
-    return max(spans)
+    return max(spans) if axis is None else spans[axis]
 
 
 # ---------------------------------------------------------------- running gmsh on the data

@@ -24,10 +24,11 @@ def estimated_dofs(scene):
         dofs = DOFS_PER_CELL_3D[degree] * nx ** 3
     elif script == "fd_contact_2d":
         dofs = DOFS_PER_CELL_2D[degree] * nx ** 2
-    else:   # body-fitted foundation: nx cells per unit length on the scene's box
+    else:   # body-fitted foundation: nx cells across the box's width
         geo = scene.get("geometry", {})
-        area = (geo.get("xmax", 1.0) - geo.get("xmin", 0.0)) * (geo.get("ymax", 1.0) - geo.get("ymin", 0.0))
-        dofs = 2 * (degree * nx) ** 2 * max(area, 1e-12)
+        width = max(geo.get("xmax", 1.0) - geo.get("xmin", 0.0), 1e-300)
+        aspect = (geo.get("ymax", 1.0) - geo.get("ymin", 0.0)) / width
+        dofs = 2 * (degree * nx) ** 2 * max(aspect, 1e-12)
     adapt = scene.get("adapt", {})
     steps = adapt.get("steps", 0)
     if steps > 0:   # each step aims at growth x the DOFs, and stops before max_dofs

@@ -133,3 +133,22 @@ def test_every_script_writes_the_pressure_positive_in_compression(tmp_path, case
     results = json.loads((out / "results.json").read_text())
     assert pressure.min() >= 0 and pressure.max() > 0
     assert pressure.max() == pytest.approx(results["contact"]["max_pressure"], rel=1e-9)
+
+
+@pytest.mark.freefem
+def test_mesh_nx_counts_elements_across_the_box_in_every_script(tmp_path):
+    """The foundation's mesh.nx is elements across the box's width, as in the two-body
+    scripts: the square in millimetres (lengths x 1000, body force / 1000, stresses as they
+    are) gets the same mesh and the same pressures, its displacements x 1000."""
+    base = (REPO / "cases" / "square_slip_separation.toml").read_text()
+    mm = (base.replace("xmax = 1.0", "xmax = 1000.0").replace("ymax = 1.0", "ymax = 1000.0")
+          .replace("body_force = [0.0, -1.0e4]", "body_force = [0.0, -10.0]"))
+    assert mm != base
+    (tmp_path / "mm.toml").write_text(mm)
+    runs = {}
+    for name, scene in (("m", REPO / "cases" / "square_slip_separation.toml"), ("mm", tmp_path / "mm.toml")):
+        proc = run_cli("run", str(scene), "--out", str(tmp_path / name), "--set", "mesh.nx=8")
+        assert proc.returncode == 0, proc.stderr
+        runs[name] = json.loads((tmp_path / name / "results.json").read_text())
+    assert runs["mm"]["elements"] == runs["m"]["elements"] == 2 * 8 * 8
+    assert runs["mm"]["contact"]["max_pressure"] == pytest.approx(runs["m"]["contact"]["max_pressure"], rel=1e-9)
