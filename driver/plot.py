@@ -82,7 +82,7 @@ class RunData:
             bits.append(f"P{r['degree']}")
         if isinstance(r.get("theta"), (int, float)):
             bits.append(f"theta = {r['theta']:.4g}")
-        gamma0 = r.get("gamma0_scene", r.get("gamma0"))       # the scene's value (results' gamma0 is scaled)
+        gamma0 = r.get("gamma0")       # the scene's value (gamma0_effective: what the terms use)
         if isinstance(gamma0, (int, float)):
             bits.append(f"gamma0 = {gamma0:.4g}")
         if isinstance(r.get("nx"), (int, float)):

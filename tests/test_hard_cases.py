@@ -122,7 +122,7 @@ def test_hard_scene_converges_bounded(tmp_path, name, balance):
     if name in ("soft_disk", "stiff_disk"):
         E1, E2 = (2.5e-3, 2.5) if name == "soft_disk" else (2.5e3, 2.5)
         assert r["gamma_scaling"] == "mean_compliance"
-        assert r["gamma0"] == pytest.approx(0.005 * 0.5 * (1 / E1 + 1 / E2), rel=1e-12)
+        assert r["gamma0_effective"] == pytest.approx(0.005 * 0.5 * (1 / E1 + 1 / E2), rel=1e-12)
 
 
 @pytest.mark.freefem

@@ -152,3 +152,18 @@ def test_mesh_nx_counts_elements_across_the_box_in_every_script(tmp_path):
         runs[name] = json.loads((tmp_path / name / "results.json").read_text())
     assert runs["mm"]["elements"] == runs["m"]["elements"] == 2 * 8 * 8
     assert runs["mm"]["contact"]["max_pressure"] == pytest.approx(runs["m"]["contact"]["max_pressure"], rel=1e-9)
+
+
+@pytest.mark.freefem
+def test_results_json_flags_are_booleans_and_gamma0_is_the_scenes(tmp_path):
+    out = tmp_path / "r"
+    proc = run_cli("run", "cases/disk_on_slab.toml", "--out", str(out), "--set", "mesh.nx=16 method.gamma0=0.01")
+    assert proc.returncode == 0, proc.stderr
+    r = json.loads((out / "results.json").read_text())
+    for table, key in (("supports", "floating_body1"), ("supports", "pins"), ("contact", "zone_resolved"),
+                       ("balance", "unbalanced"), ("balance", "allow_unbalanced"), ("plausibility", "implausible"),
+                       ("adapt", "warm_start")):
+        assert isinstance(r[table][key], bool), (table, key)
+    assert r["supports"]["floating_body1"] is True and r["balance"]["unbalanced"] is False
+    assert r["gamma0"] == 0.01 and r["gamma0_effective"] == pytest.approx(0.01 * r["gamma_scale"], rel=1e-15)
+    assert r["adapt"]["step_dirs"] is None and "gamma0_scene" not in r

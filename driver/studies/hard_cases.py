@@ -55,7 +55,7 @@ def summary(results):
                 centre_uy=results["probes"]["centre"][1],
                 min_cut_ratio=min(cut["min_ratio_body1"], cut["min_ratio_body2"]),
                 dropped=cut.get("dropped_body1", 0) + cut.get("dropped_body2", 0),
-                gamma0_effective=results["gamma0"])
+                gamma0_effective=results["gamma0_effective"])
 
 
 def hard_reference():
