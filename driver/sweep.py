@@ -323,7 +323,7 @@ def scene_task(scene_ref, overrides, runs_ref):
     return out
 
 
-SKIP_RESULTS = {"timings_cpu_s", "steps", "adapt", "outputs", "status", "scene", "script", "wall_s"}
+SKIP_RESULTS = {"timings_cpu_s", "steps", "adapt", "outputs", "status", "scene", "script", "wall_s", "provenance"}
 
 
 def flatten_results(results, prefix="", depth=0):

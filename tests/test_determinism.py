@@ -15,12 +15,14 @@ from conftest import REPO
 DISK = "cases/disk_on_slab.toml"
 
 # Measurements of the run, not of the input: CPU seconds per phase and per adaptive
-# step, the driver's wall time and peak memory.
+# step, the driver's wall time and peak memory; and where and when it ran (provenance:
+# its date, its folder in the command).
 EXCLUDED_PATHS = {
     ("timings_cpu_s",),
     ("steps", "cpu_s"),
     ("wall_s",),
     ("peak_rss_mb",),
+    ("provenance",),
 }
 
 
