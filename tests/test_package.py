@@ -8,6 +8,7 @@ import shutil
 import subprocess
 import sys
 import zipfile
+from pathlib import Path
 
 import pytest
 
@@ -15,6 +16,14 @@ from tests.conftest import REPO, run_cli
 
 
 @pytest.mark.freefem
+def driver_results(case, out, *settings):
+    """python -m driver run CASE --out OUT --set SETTING ...: its results.json (the test fails
+    with the driver's message otherwise)."""
+    proc = run_cli("run", str(case), "--out", str(out), *[a for s in settings for a in ("--set", s)])
+    assert proc.returncode == 0, proc.stderr
+    return json.loads((Path(out) / "results.json").read_text())
+
+
 def test_the_api_takes_a_dict_and_gives_dataframes_and_meshes(tmp_path):
     import driver as fdcontact     # the checkout's name for the package fdcontact
 
@@ -63,9 +72,7 @@ def test_the_literate_example_runs(tmp_path):
 @pytest.mark.freefem
 def test_a_published_folder_runs_again_with_its_command(tmp_path):
     out = tmp_path / "r"
-    proc = run_cli("run", "cases/disk_on_slab.toml", "--out", str(out), "--set", "mesh.nx=20")
-    assert proc.returncode == 0, proc.stderr
-    first = json.loads((out / "results.json").read_text())
+    first = driver_results("cases/disk_on_slab.toml", out, "mesh.nx=20")
     assert str(out) in (out / "command.txt").read_text() and ".staging" not in (out / "command.txt").read_text()
     again = subprocess.run(["sh", str(out / "command.txt")], capture_output=True, text=True)
     assert again.returncode == 0, again.stdout[-2000:] + again.stderr[-2000:]
@@ -76,10 +83,7 @@ def test_a_published_folder_runs_again_with_its_command(tmp_path):
 @pytest.mark.freefem
 def test_results_say_where_they_came_from_and_in_what_units(tmp_path):
     out = tmp_path / "r"
-    proc = run_cli("run", "cases/disk_on_slab.toml", "--out", str(out), "--set",
-                   'mesh.nx=12 scene.units={ length = "mm", stress = "MPa" }')
-    assert proc.returncode == 0, proc.stderr
-    r = json.loads((out / "results.json").read_text())
+    r = driver_results("cases/disk_on_slab.toml", out, 'mesh.nx=12 scene.units={ length = "mm", stress = "MPa" }')
     prov = r["provenance"]
     from driver import __version__
 
@@ -127,10 +131,8 @@ def test_every_script_writes_the_pressure_positive_in_compression(tmp_path, case
     import pandas as pd
 
     out = tmp_path / "r"
-    proc = run_cli("run", case, "--out", str(out), *[a for o in overrides for a in ("--set", o)])
-    assert proc.returncode == 0, proc.stderr
+    results = driver_results(case, out, *overrides)
     pressure = pd.read_csv(out / "contact_pressure.csv")["pressure"]
-    results = json.loads((out / "results.json").read_text())
     assert pressure.min() >= 0 and pressure.max() > 0
     assert pressure.max() == pytest.approx(results["contact"]["max_pressure"], rel=1e-9)
 
@@ -145,21 +147,15 @@ def test_mesh_nx_counts_elements_across_the_box_in_every_script(tmp_path):
           .replace("body_force = [0.0, -1.0e4]", "body_force = [0.0, -10.0]"))
     assert mm != base
     (tmp_path / "mm.toml").write_text(mm)
-    runs = {}
-    for name, scene in (("m", REPO / "cases" / "square_slip_separation.toml"), ("mm", tmp_path / "mm.toml")):
-        proc = run_cli("run", str(scene), "--out", str(tmp_path / name), "--set", "mesh.nx=8")
-        assert proc.returncode == 0, proc.stderr
-        runs[name] = json.loads((tmp_path / name / "results.json").read_text())
+    runs = {name: driver_results(scene, tmp_path / name, "mesh.nx=8")
+            for name, scene in (("m", REPO / "cases" / "square_slip_separation.toml"), ("mm", tmp_path / "mm.toml"))}
     assert runs["mm"]["elements"] == runs["m"]["elements"] == 2 * 8 * 8
     assert runs["mm"]["contact"]["max_pressure"] == pytest.approx(runs["m"]["contact"]["max_pressure"], rel=1e-9)
 
 
 @pytest.mark.freefem
 def test_results_json_flags_are_booleans_and_gamma0_is_the_scenes(tmp_path):
-    out = tmp_path / "r"
-    proc = run_cli("run", "cases/disk_on_slab.toml", "--out", str(out), "--set", "mesh.nx=16 method.gamma0=0.01")
-    assert proc.returncode == 0, proc.stderr
-    r = json.loads((out / "results.json").read_text())
+    r = driver_results("cases/disk_on_slab.toml", tmp_path / "r", "mesh.nx=16 method.gamma0=0.01")
     for table, key in (("supports", "floating_body1"), ("supports", "pins"), ("contact", "zone_resolved"),
                        ("balance", "unbalanced"), ("balance", "allow_unbalanced"), ("plausibility", "implausible"),
                        ("adapt", "warm_start")):
