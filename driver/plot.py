@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DriverError
+from .paraview import inside_extension
 
 FIGURE_DPI = 130
 PRESSURE_LABEL = "contact pressure (positive in compression)"
@@ -276,29 +277,6 @@ def edge_points(data, a, b, column):
     fa, fb = data[a, column], data[b, column]
     t = fa / (fa - fb)
     return data[a] + t[:, None] * (data[b] - data[a])
-
-
-def inside_extension(cells, values, phi):
-    """values with those at the vertices outside {phi < 0} of cells the level set cuts replaced by
-    the mean over their edges of the inside vertices' values. A stress at a vertex outside a
-    body is its field extended from a cut element, possibly a tiny cut: not the body's; the
-    clipped drawing interpolates toward it along the cut edges."""
-    out = np.array(values, dtype=float)
-    inside = phi < 0
-    total = np.zeros(len(out))
-    count = np.zeros(len(out))
-    corners = cells.shape[1]
-    for i in range(corners):
-        for j in range(corners):
-            if i == j:
-                continue
-            p, q = cells[:, i], cells[:, j]
-            sel = ~inside[p] & inside[q]
-            np.add.at(total, p[sel], out[q[sel]])
-            np.add.at(count, p[sel], 1.0)
-    fill = count > 0
-    out[fill] = total[fill] / count[fill]
-    return out
 
 
 def cut_tetrahedra(tets, data, axis_column, level):

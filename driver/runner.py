@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 
 from .errors import DriverError, FreeFemError, NewtonError, SceneError
+from .paraview import paraview_files
 from .paths import FREEFEM_DIR, IN_CHECKOUT, REPO
 from .plugins import ensure_plugins
 from .resources import available_memory_mb, check_fits
@@ -397,6 +398,7 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
         wall = time.perf_counter() - start
         guard.check(scene["scene"]["name"], proc.returncode)
         results = check_outcome(proc.returncode, staging, scene["scene"]["name"])
+        paraview_files(staging, results)
         results["wall_s"] = wall
         results["peak_rss_mb"] = guard.peak_mb
         published = [arg.replace(str(staging), str(final)) for arg in command]   # the run.edp, -outdir

@@ -163,3 +163,24 @@ def test_results_json_flags_are_booleans_and_gamma0_is_the_scenes(tmp_path):
     assert r["supports"]["floating_body1"] is True and r["balance"]["unbalanced"] is False
     assert r["gamma0"] == 0.01 and r["gamma0_effective"] == pytest.approx(0.01 * r["gamma_scale"], rel=1e-15)
     assert r["adapt"]["step_dirs"] is None and "gamma0_scene" not in r
+
+
+@pytest.mark.freefem
+def test_paraview_sees_both_bodies_and_the_plots_stress(tmp_path):
+    """bodies.pvd groups body1.vtu and body2.vtu; their von_mises_inside equals von_mises inside
+    the body and takes its range there (the cut elements' extended stress is left out)."""
+    import meshio
+    import numpy as np
+
+    out = tmp_path / "r"
+    r = driver_results("cases/hertz_cylinders.toml", out, "adapt.steps=2")
+    assert r["outputs"]["pvd"] == "bodies.pvd"
+    pvd = (out / "bodies.pvd").read_text()
+    assert 'timestep="2" part="0" file="body1.vtu"' in pvd and 'part="1" file="body2.vtu"' in pvd
+    for name in ("body1", "body2"):
+        mesh = meshio.read(out / f"{name}.vtu")
+        vm, inside = (np.asarray(mesh.point_data[k]).reshape(-1) for k in ("von_mises", "von_mises_inside"))
+        phi = np.asarray(mesh.point_data["phi"]).reshape(-1)
+        assert (inside[phi < 0] == vm[phi < 0]).all()
+        assert inside.max() == vm[phi < 0].max() and inside.min() >= vm[phi < 0].min()
+        assert vm.max() > 1.5 * vm[phi < 0].max()      # what ParaView's colour range used to take
