@@ -57,7 +57,8 @@ def add_inside_stress(path):
     mesh = meshio.vtu.read(path)
     vm = np.asarray(mesh.point_data["von_mises"], dtype=float).reshape(-1)
     phi = np.asarray(mesh.point_data["phi"], dtype=float).reshape(-1)
-    cells = np.vstack([block.data for block in mesh.cells if block.type in ("triangle", "tetra")])
+    kind = "tetra" if any(block.type == "tetra" for block in mesh.cells) else "triangle"   # the body's cells
+    cells = np.vstack([block.data for block in mesh.cells if block.type == kind])
     mesh.point_data["von_mises_inside"] = inside_extension(cells, vm, phi, rings=None)
     tmp = Path(path).with_name(f".{Path(path).name}.tmp.vtu")
     meshio.vtu.write(tmp, mesh, binary=False)
