@@ -16,7 +16,8 @@ SUDO := $(shell [ "$$(id -u)" -eq 0 ] || echo sudo)
 # libfreefem++-dev, libmumps-seq-dev, g++: to build the plugins (freefem/plugins:
 # the Newton's MUMPS instance, contact_mumps.cpp; the 2D curved cut cells, the
 # estimators' cut-edge pieces, the contact points' projections and the level-set
-# normals, curved_cells.cpp; the recovered contact pressure, pressure_recovery.cpp).
+# normals, curved_cells.cpp; the recovered contact pressure, pressure_recovery.cpp; the
+# nearest submesh element of 3D points outside a body's submesh, nearest_kept.cpp).
 DEBIAN_PACKAGES := freefem++ libfreefem++ gmsh libopenblas0-pthread libfreefem++-dev libmumps-seq-dev g++ \
 	python3 python3-venv ca-certificates
 OPENBLAS := /usr/lib/x86_64-linux-gnu/openblas-pthread/libblas.so.3
@@ -24,11 +25,13 @@ export FF_LOADPATH := /usr/lib/freefem++
 
 .PHONY: setup setup-system setup-python case test clean
 
-PLUGINS := freefem/plugins/contact_mumps.so freefem/plugins/curved_cells.so freefem/plugins/pressure_recovery.so
+PLUGINS := freefem/plugins/contact_mumps.so freefem/plugins/curved_cells.so freefem/plugins/pressure_recovery.so \
+	freefem/plugins/nearest_kept.so
 # what each plugin links besides FreeFEM (MUMPS's sequential libraries, LAPACK)
-LIBS_contact_mumps := -I/usr/include/mumps_seq -ldmumps_seq -lmumps_common_seq -lmpiseq_seq -l:liblapack.so.3
+LIBS_contact_mumps := -I/usr/include/mumps_seq -ldmumps_seq -lsmumps_seq -lmumps_common_seq -lmpiseq_seq -l:liblapack.so.3
 LIBS_curved_cells :=
 LIBS_pressure_recovery :=
+LIBS_nearest_kept :=
 
 setup: setup-system setup-python $(PLUGINS)
 

@@ -320,6 +320,11 @@ def two_body_solver_schema(floating_body, contact_points):
                           doc="MUMPS's fill-reducing ordering: auto takes AMD unless its predicted "
                               "factorization does more than 6000 operations per matrix entry (then Scotch's "
                               "nested dissection, whose ordering costs more but pays on large 3D systems)"),
+        "precision": Field("str", flag="precision", default="auto", choices=("auto", "double", "single"),
+                           doc="precision of MUMPS's factors: single halves their memory and, on large 3D "
+                               "systems, their time, and every solve is refined to double precision (GMRES "
+                               "on the double-precision matrix); auto takes single when AMD's predicted "
+                               "factorization exceeds 2e10 operations, double otherwise"),
         "allow_unbalanced": Field("bool", flag="allow_unbalanced", default=False,
                                   doc=f"keep a run whose pins or mass term carry more than 1e-6 of the "
                                       f"{floating_body}'s load beyond the solve's round-off (flagged in "
