@@ -9,8 +9,9 @@
 // pattern stays the same and refactorizes numerically only, and it returns MUMPS's
 // error code to the script instead of aborting the process.
 //
-// Script interface (one instance per process; the matrix is copied, so the script
-// may change or free it after the call):
+// Script interface (one instance per run, on rank 0 under FreeFem++-mpi: see "The
+// processes" below; the matrix is copied, so the script may change or free it after
+// the call):
 //   int contactMumpsFactor(matrix K, int reuse)
 //   int contactMumpsFactor(matrix A, matrix B, int reuse)
 //       factorize K, or K = A + B (square, stored in full; an empty B adds nothing). reuse != 0: numeric
@@ -37,16 +38,26 @@
 //       would exceed maxNew (nothing done: the caller refactorizes); -1005 when C is
 //       singular; -1000 / -1001 as below. All of d zero turns the correction off.
 //   int contactMumpsOutOfCore(string dir)
+//   int contactMumpsOutOfCore(string dir, real aboveMb)
 //       "": factors in memory (the default); else the next factorizations write their
 //       factors to files in dir (MUMPS's out-of-core mode, ICNTL(22) = 1, prefix
-//       mumps_factors), which MUMPS deletes when the instance is released. Returns 0,
-//       or -1006 when dir is longer than MUMPS accepts (255 bytes).
+//       mumps_factors), which MUMPS deletes when the instance is released: always,
+//       or with aboveMb > 0 when the analysis predicts more than aboveMb MB of
+//       factors (INFOG(20) entries) and dir's file system has twice that free.
+//       Returns 0, or -1006 when dir is longer than MUMPS accepts (255 bytes).
 //   int contactMumpsOrdering(int mode)
 //       the fill-reducing ordering of the next analyses: 0 automatic (below), 1 AMD,
-//       2 nested dissection (Scotch). Returns 0, or -1007 for another mode.
+//       2 nested dissection (Scotch; PORD in the MPI build, whose parallel MUMPS has
+//       no Scotch). Returns 0, or -1007 for another mode.
 //   int contactMumpsPrecision(int mode)
 //       the precision of the next factorizations: 0 double, 1 single, 2 automatic
 //       (below). Returns 0, or -1009 for another mode.
+//   int contactMumpsCompression(real eps)
+//       eps > 0: the next factorizations are MUMPS's block low-rank ones (ICNTL(35) =
+//       2, dropping parameter CNTL(7) = eps), every solve refined to double precision
+//       as for single-precision factors; 0: full rank. Returns 0, -1010 in the
+//       sequential build for eps > 0 (Debian's sequential MUMPS crashes in its BLR
+//       clustering: core/sparse_solver.idp), -1011 for eps outside [0, 1).
 //   int contactMumpsThreads(int n)
 //       the threads of the BLAS under MUMPS's dense kernels (OpenBLAS's
 //       openblas_set_num_threads, process-wide): n >= 1. Returns the count in force
@@ -59,16 +70,25 @@
 //       size n of the last matrix, INFOG(1) of the last call, CPU seconds spent in
 //       MUMPS's analyses, numeric factorizations and solves, the low-rank columns
 //       computed and their CPU seconds (counts and seconds: process totals), the
-//       ordering of the last analysis (MUMPS's INFOG(7): 0 AMD, 3 Scotch), the
+//       ordering of the last analysis (MUMPS's INFOG(7): 0 AMD, 3 Scotch, 4 PORD), the
 //       operations per matrix entry AMD predicted in the last automatic choice (0
 //       without one), the precision of the last factorization (0 double, 1 single),
 //       the refinement steps (preconditioned iterations after the first solve,
 //       process total), the factorizations redone in double because refinement did
 //       not reach double precision (process total), the largest backward error a
-//       refinement left (process maximum), and the memory of the largest process in
-//       the last factorization in MB (INFOG(21)).
+//       refinement left (process maximum), the memory of the largest process in the
+//       last factorization in MB (INFOG(21)), whether the factors in force are block
+//       low-rank (1) or not (0), the entries of the factors with their low-rank
+//       blocks compressed (INFOG(35)), and whether they are in files (1) or in
+//       memory (0).
 //   int contactMumpsRelease()
 //       frees the instance (the next factorization analyses again).
+//   int contactMumpsProcessMemory(real[int] mb)
+//       mb (resized to the number of processes) = each process's peak resident memory
+//       so far in MB (/proc's VmHWM); returns the number of processes.
+// The plugin is also FreeFEM's default sparse solver (sparsesolver, solve): one
+// MUMPS instance per matrix on rank 0 alone, with MUMPS_seq's settings (the class
+// ScriptMumps below).
 //
 // The automatic ordering. Nested dissection (Scotch) makes sparser factors than
 // approximate minimum degree (AMD) on all but the smallest contact systems (0.45 to
@@ -106,8 +126,13 @@
 // against 4.22 s of CPU, 20 % less peak memory); nx = 30, 6.9e12, the Newton
 // 118 s against 182 s and the peak memory 6.1 GB against 9.0 GB.
 //
-// Build: make setup (the Makefile's rule for freefem/plugins/contact_mumps.so,
-// FreeFEM's ff-c++ against Debian's libmumps-seq-dev).
+// Block low-rank factors (contactMumpsCompression) are refined the same way: they
+// are a looser preconditioner, cheaper to compute and to store, which costs more
+// refinement steps (measured: docs/benchmarks.md).
+//
+// Build: make setup (the Makefile's rules: freefem/plugins/contact_mumps.so with
+// FreeFEM's ff-c++ against Debian's libmumps-seq-dev; freefem/plugins/mpi/
+// contact_mumps.so with ff-c++ -mpi -DCONTACT_MUMPS_MPI against libmumps-dev).
 
 #include <iostream>
 #include <ctime>
@@ -117,10 +142,17 @@
 #include <algorithm>
 #include <cstring>
 #include <string>
+#include <fstream>
 #include <dlfcn.h>
+#include <unistd.h>
+#include <sys/statvfs.h>
 #include "ff++.hpp"
 #include "AFunction_ext.hpp"
+#ifdef CONTACT_MUMPS_MPI
+#include <mpi.h>
+#else
 #include "mumps_seq/mpi.h"
+#endif
 #include "dmumps_c.h"
 #include "smumps_c.h"
 
@@ -135,9 +167,15 @@ const int kJobInit = -1, kJobEnd = -2, kJobAnalyse = 1, kJobFactor = 2, kJobSolv
 const int kHostWorks = 1, kUseCommWorld = -987654;
 const long kNoFactorization = -1000, kNotSquare = -1001, kNoMatrix = -1002, kTooManyColumns = -1004,
            kSingularCapacitance = -1005, kDirectoryTooLong = -1006, kBadOrdering = -1007,
-           kNoThreadControl = -1008, kBadPrecision = -1009;
+           kNoThreadControl = -1008, kBadPrecision = -1009, kNoCompression = -1010, kBadCompression = -1011;
 const int kOrderingAuto = 0, kOrderingAmd = 1, kOrderingNested = 2;
-const int kIcntlAmd = 0, kIcntlScotch = 3;   // ICNTL(7) values
+// ICNTL(7) values: AMD, and the nested dissection of each build (Debian's parallel
+// MUMPS has no Scotch: PORD there)
+#ifdef CONTACT_MUMPS_MPI
+const int kIcntlAmd = 0, kIcntlNested = 4;
+#else
+const int kIcntlAmd = 0, kIcntlNested = 3;
+#endif
 const double kNestedDissectionPays = 6000;   // AMD's predicted operations per matrix entry (see above)
 const int kColumnBlock = 32;   // right-hand sides per MUMPS solve of the low-rank columns
 const int kPrecisionDouble = 0, kPrecisionSingle = 1, kPrecisionAuto = 2;
@@ -145,7 +183,7 @@ const double kSinglePays = 1e11;             // predicted elimination operations
 const double kRefinedError = 16 * DBL_EPSILON;    // componentwise backward error the refinement aims at
 const double kAcceptedError = 64 * DBL_EPSILON;   // ... and accepts when it stops improving
 const int kGmresRestart = 12, kGmresCycles = 6;
-const int kStats = 20;
+const int kStats = 23;
 
 // M.CSR(), its row pointers M.p over entries in row order (columns increasing within
 // a row), with the entries put in that order by a counting sort first: CSR() then only
@@ -186,6 +224,53 @@ static void rowPointers(HashMatrix<int, double> &M) {
     M.CSR();
 }
 
+// The processes. The sequential build (contact_mumps.so) runs in one process. The MPI
+// build (mpi/contact_mumps.so, for FreeFem++-mpi) is loaded by every rank while
+// FreeFEM compiles the script, before any statement runs: rank 0 goes on and runs the
+// script, every other rank stays in serveRequests and takes part in the Newton's MUMPS
+// calls, which rank 0 announces one by one (a Request: the job, the precision and
+// MUMPS's control arrays). The matrix, the right-hand sides and the solutions are
+// centralized on rank 0; MUMPS distributes the factorization and the solves. When
+// rank 0's run ends (normally, or by exit(n) from the script), FreeFEM's end hook
+// sends the last request and every rank leaves; a rank that dies makes mpirun stop
+// the others.
+struct Processes {
+    int rank = 0, size = 1;
+};
+Processes processes;
+
+#ifdef CONTACT_MUMPS_MPI
+const int kJobQuit = -100, kJobReport = -101;   // requests that are not MUMPS jobs
+struct Request {
+    int job, single, sym;
+    int icntl[60];
+    double cntl[15];
+    char oocDir[256], oocPrefix[64];
+};
+
+// One request from rank 0 to the others. Idle ranks wait for it without spinning
+// (Open MPI busy-polls a blocking collective): a non-blocking broadcast tested every
+// millisecond, so that a waiting rank takes no CPU from the script on rank 0.
+void broadcast(Request &request) {
+    MPI_Request pending;
+    MPI_Ibcast(&request, sizeof(Request), MPI_BYTE, 0, MPI_COMM_WORLD, &pending);
+    if (processes.rank == 0) { MPI_Wait(&pending, MPI_STATUS_IGNORE); return; }
+    int done = 0;
+    for (MPI_Test(&pending, &done, MPI_STATUS_IGNORE); !done; MPI_Test(&pending, &done, MPI_STATUS_IGNORE))
+        usleep(1000);
+}
+#endif
+
+// This process's peak resident memory in MB (VmHWM), 0 if unknown.
+double peakResidentMb() {
+    std::ifstream status("/proc/self/status");
+    std::string word;
+    double kb = 0.;
+    while (status >> word)
+        if (word == "VmHWM:") { status >> kb; break; }
+    return kb / 1024.;
+}
+
 // MUMPS in one precision: DMUMPS for double, SMUMPS for float.
 template <class Real> struct MumpsApi;
 template <> struct MumpsApi<double> {
@@ -208,10 +293,13 @@ inline void fromReal(double *, size_t, const std::vector<double> &) {}
 inline void fromReal(double *x, size_t n, const std::vector<float> &buffer) { std::copy(buffer.begin(), buffer.begin() + n, x); }
 
 // One MUMPS instance of one precision; the matrix is the plugin's (pattern and
-// double values), converted when the instance is single precision.
+// double values), converted when the instance is single precision. A shared instance
+// (the Newton's) runs on every process of the MPI build, the others on this process
+// alone.
 template <class Real> struct MumpsInstance {
     typename MumpsApi<Real>::Id id;
-    bool started = false;
+    bool started = false, shared = false;
+    int sym = 0;
     std::vector<Real> values, rhs, rhsSparse;
 
     int &icntl(int i) { return id.icntl[i - 1]; }
@@ -220,14 +308,36 @@ template <class Real> struct MumpsInstance {
     // MUMPS reports entry counts beyond the int range as minus millions.
     double count(int i) const { return infog(i) >= 0 ? infog(i) : -1e6 * infog(i); }
 
+    // One MUMPS call, announced to the other processes first when the instance is shared.
+    void run() {
+#ifdef CONTACT_MUMPS_MPI
+        if (shared && processes.size > 1) {
+            Request request;
+            std::memset(&request, 0, sizeof(request));
+            request.job = id.job;
+            request.single = sizeof(Real) == sizeof(float);
+            request.sym = id.sym;
+            std::copy(id.icntl, id.icntl + 60, request.icntl);
+            std::copy(id.cntl, id.cntl + 15, request.cntl);
+            std::memcpy(request.oocDir, id.ooc_tmpdir, sizeof(request.oocDir));
+            std::memcpy(request.oocPrefix, id.ooc_prefix, sizeof(request.oocPrefix));
+            broadcast(request);
+        }
+#endif
+        MumpsApi<Real>::run(&id);
+    }
     void start() {
         if (started) return;
         std::memset(&id, 0, sizeof(id));
         id.job = kJobInit;
         id.par = kHostWorks;
-        id.sym = 0;
+        id.sym = sym;
+#ifdef CONTACT_MUMPS_MPI
+        id.comm_fortran = (MUMPS_INT)MPI_Comm_c2f(shared ? MPI_COMM_WORLD : MPI_COMM_SELF);
+#else
         id.comm_fortran = kUseCommWorld;
-        MumpsApi<Real>::run(&id);
+#endif
+        run();
         started = true;
     }
     // Errors only, on stdout (ICNTL(4) = 1): the scripts report the code themselves;
@@ -242,14 +352,14 @@ template <class Real> struct MumpsInstance {
         quiet();
         id.job = job;
         const std::clock_t t0 = std::clock();
-        MumpsApi<Real>::run(&id);
+        run();
         seconds += double(std::clock() - t0) / CLOCKS_PER_SEC;
         return infog(1);
     }
     void end() {
         if (started) {
             id.job = kJobEnd;
-            MumpsApi<Real>::run(&id);
+            run();
         }
         started = false;
         std::vector<Real>().swap(values);
@@ -312,8 +422,11 @@ template <class Real> struct MumpsInstance {
 struct ContactMumps {
     MumpsInstance<double> dbl;
     MumpsInstance<float> sgl;
+    ContactMumps() { dbl.shared = sgl.shared = true; }
     bool single = false;        // the factors in force are sgl's
-    bool doubleOnly = false;    // refinement failed in this solve: double until release
+    bool compressed = false;    // ... and block low-rank (compressionEps)
+    bool doubleOnly = false;    // refinement failed in this solve: exact double factors until release
+    double compressionEps = 0;  // MUMPS's BLR dropping parameter CNTL(7); 0: full rank
     bool factorized = false;
     std::vector<int> irn, jcn;       // the analysed pattern, 1-based, row by row
     std::vector<int> rowsNext, colsNext;   // the pattern being loaded
@@ -329,7 +442,12 @@ struct ContactMumps {
     // Low-rank correction (contactMumpsLowRank): the kept columns g_q = P Kf^-1 PtT e_q
     // (columnOf[q] indexes columns), and the correction in force: its points S, d on
     // S, the LU of C, P's rows and PtT's columns on S.
-    std::string outOfCoreDir;   // "" in core
+    // Out of core (contactMumpsOutOfCore): the factors' folder, and whether they go there
+    // always, or when MUMPS predicts more than outOfCoreAboveMb of them and the folder
+    // has twice that free (0: never automatically); outOfCore: the factors in force.
+    std::string outOfCoreDir;
+    bool outOfCoreAlways = false, outOfCore = false;
+    double outOfCoreAboveMb = 0;
     std::vector<int> columnOf;
     std::vector<std::vector<double> > columns;
     std::vector<int> corrPoints, corrPivots;
@@ -352,7 +470,7 @@ struct ContactMumps {
     void release() {
         dbl.end();
         sgl.end();
-        single = doubleOnly = factorized = false;
+        single = compressed = doubleOnly = factorized = false;
         irn.clear(); jcn.clear(); values.clear(); rowsNext.clear(); colsNext.clear(); rowStart.clear();
         dropColumns();
     }
@@ -396,8 +514,11 @@ struct ContactMumps {
     // One analysis on instance m with ordering icntl7 (MUMPS's ICNTL(7)); returns INFOG(1).
     template <class Real> long analyseIn(MumpsInstance<Real> &m, int icntl7, int size) {
         m.start();
-        m.setMatrix(size, irn, jcn, values, outOfCoreDir);
+        m.setMatrix(size, irn, jcn, values, std::string());
         m.icntl(7) = icntl7;
+        compressed = !doubleOnly && compressionEps > 0;
+        m.icntl(35) = compressed ? 2 : 0;   // BLR factors (kept compressed for the solves)
+        m.id.cntl[6] = compressed ? compressionEps : 0.;
         return lastInfo = m.call(kJobAnalyse, analysisSeconds);
     }
 
@@ -409,7 +530,7 @@ struct ContactMumps {
         dbl.end();
         sgl.end();
         single = !doubleOnly && precisionMode == kPrecisionSingle;
-        const int first = orderingMode == kOrderingNested ? kIcntlScotch : kIcntlAmd;
+        const int first = orderingMode == kOrderingNested ? kIcntlNested : kIcntlAmd;
         if (single) analyseIn(sgl, first, size);
         else analyseIn(dbl, first, size);
         if (lastInfo < 0) return lastInfo;
@@ -417,7 +538,7 @@ struct ContactMumps {
         int chosen = first;
         if (orderingMode == kOrderingAuto) {
             amdOperationsPerEntry = operations / double(irn.size());
-            if (amdOperationsPerEntry > kNestedDissectionPays) chosen = kIcntlScotch;
+            if (amdOperationsPerEntry > kNestedDissectionPays) chosen = kIcntlNested;
         }
         const bool toSingle = !single && !doubleOnly && precisionMode == kPrecisionAuto && operations > kSinglePays;
         if (toSingle) {
@@ -429,8 +550,19 @@ struct ContactMumps {
         return single ? analyseIn(sgl, chosen, size) : analyseIn(dbl, chosen, size);
     }
 
+    // Whether the factors MUMPS's analysis predicts for instance m go to files.
+    template <class Real> bool factorsOutOfCore(const MumpsInstance<Real> &m) const {
+        if (outOfCoreDir.empty()) return false;
+        if (outOfCoreAlways) return true;
+        const double mb = m.count(20) * sizeof(Real) / 1e6;   // INFOG(20): predicted entries
+        struct statvfs fs;
+        if (!(outOfCoreAboveMb > 0 && mb > outOfCoreAboveMb) || statvfs(outOfCoreDir.c_str(), &fs) != 0) return false;
+        return double(fs.f_bavail) * fs.f_frsize / 1e6 > 2 * mb;
+    }
+
     template <class Real> long factorWith(MumpsInstance<Real> &m) {
-        m.setMatrix(m.id.n, irn, jcn, values, outOfCoreDir);
+        outOfCore = factorsOutOfCore(m);
+        m.setMatrix(m.id.n, irn, jcn, values, outOfCore ? outOfCoreDir : std::string());
         lastInfo = m.call(kJobFactor, factorSeconds);
         m.dropValues();
         return lastInfo;
@@ -615,7 +747,7 @@ struct ContactMumps {
         const int size = n();
         x.resize(size);
         for (int i = 0; i < size; ++i) x[i] = b[i];
-        if (applyInverse((double *)x) < 0 || !single) return lastInfo;
+        if (applyInverse((double *)x) < 0 || !(single || compressed)) return lastInfo;
         double error = refine((double *)x, (const double *)b);
         if (error >= 0. && error <= kAcceptedError) {
             largestRefinedError = std::max(largestRefinedError, error);
@@ -721,6 +853,144 @@ struct ContactMumps {
     }
 };
 
+#ifdef CONTACT_MUMPS_MPI
+// A rank other than 0: the same MUMPS call as rank 0, on its own instance of the
+// request's precision.
+template <class Real> void serve(MumpsInstance<Real> &m, const Request &request) {
+    if (request.job == kJobInit) {
+        std::memset(&m.id, 0, sizeof(m.id));
+        m.id.par = kHostWorks;
+        m.id.sym = request.sym;
+        m.id.comm_fortran = (MUMPS_INT)MPI_Comm_c2f(MPI_COMM_WORLD);
+    } else {
+        std::copy(request.icntl, request.icntl + 60, m.id.icntl);
+        for (int i = 0; i < 15; ++i) m.id.cntl[i] = (Real)request.cntl[i];
+        std::memcpy(m.id.ooc_tmpdir, request.oocDir, sizeof(request.oocDir));
+        std::memcpy(m.id.ooc_prefix, request.oocPrefix, sizeof(request.oocPrefix));
+    }
+    m.id.job = request.job;
+    MumpsApi<Real>::run(&m.id);
+}
+
+// Ranks other than 0 never return from here: they serve rank 0's requests until it
+// sends kJobQuit, then leave (FreeFEM's own end would run the script's cleanup).
+void serveRequests() {
+    MumpsInstance<double> dbl;
+    MumpsInstance<float> sgl;
+    for (;;) {
+        Request request;
+        broadcast(request);
+        if (request.job == kJobQuit) break;
+        if (request.job == kJobReport) {
+            double mb = peakResidentMb();
+            MPI_Gather(&mb, 1, MPI_DOUBLE, 0, 0, MPI_DOUBLE, 0, MPI_COMM_WORLD);
+            continue;
+        }
+        if (request.single) serve(sgl, request);
+        else serve(dbl, request);
+    }
+    MPI_Finalize();
+    _exit(0);
+}
+
+// Rank 0's end of the run (FreeFEM's end hook, before its MPI_Finalize): the other
+// ranks leave.
+void stopOtherRanks() {
+    static bool stopped = false;
+    int finalized = 0;
+    MPI_Finalized(&finalized);
+    if (stopped || finalized || processes.size < 2) return;
+    stopped = true;
+    Request request;
+    std::memset(&request, 0, sizeof(request));
+    request.job = kJobQuit;
+    broadcast(request);
+}
+#endif
+
+// mb (one entry per process) = each process's peak resident memory in MB so far.
+long contactMumpsProcessMemory(KN<double> *const &mb) {
+    mb->resize(processes.size);
+    (*mb)[0] = peakResidentMb();
+#ifdef CONTACT_MUMPS_MPI
+    if (processes.size > 1) {
+        Request request;
+        std::memset(&request, 0, sizeof(request));
+        request.job = kJobReport;
+        broadcast(request);
+        double own = (*mb)[0];
+        std::vector<double> all(processes.size);
+        MPI_Gather(&own, 1, MPI_DOUBLE, all.data(), 1, MPI_DOUBLE, 0, MPI_COMM_WORLD);
+        for (int r = 0; r < processes.size; ++r) (*mb)[r] = all[r];
+    }
+#endif
+    return processes.size;
+}
+
+// FreeFEM's sparsesolver (solve, set(A, solver = sparsesolver)) for the scripts' other
+// systems (estimators, recovered pressure, tools), one MUMPS instance per matrix on
+// this process alone. FreeFEM's MUMPS_seq plugin did this; under FreeFem++-mpi,
+// Debian's build of it initialises MPI a second time and aborts the run, so the
+// plugin provides it in both builds, with MUMPS_seq's settings (MUMPS's automatic
+// ordering, ICNTL(7) = 7; a matrix stored as a half is taken as positive definite,
+// SYM = 1) and the matrix in the same order: the sequential build gives MUMPS_seq's
+// numbers to the bit.
+class ScriptMumps : public VirtualSolver<int, double> {
+  public:
+    static const int orTypeSol = 1 | 4 | 8 | 16 | 32;
+    HashMatrix<int, double> &A;
+    MumpsInstance<double> m;
+    std::vector<int> irn, jcn;
+    std::vector<double> a;
+    int symbolicChanges = 0, numericChanges = 0;
+    double seconds = 0;
+
+    ScriptMumps(HashMatrix<int, double> &AA, const Data_Sparse_Solver &, Stack) : A(AA) { m.sym = A.half ? 1 : 0; }
+    ~ScriptMumps() { m.end(); }
+
+    void check(const char *what) {
+        if (m.infog(1) >= 0) return;
+        const long info = m.infog(1);
+        m.end();
+        ExecError((std::string("MUMPS ") + what + " failed, INFOG(1) = " + std::to_string(info)).c_str());
+    }
+    void fac_init() {
+        rowPointers(A);
+        irn.resize(A.nnz); jcn.resize(A.nnz); a.resize(A.nnz);
+        for (int i = 0; i < A.n; ++i)
+            for (int k = A.p[i]; k < A.p[i + 1]; ++k) { irn[k] = i + 1; jcn[k] = A.j[k] + 1; a[k] = A.aij[k]; }
+    }
+    void fac_symbolic() {
+        m.end();
+        m.start();
+        m.setMatrix(A.n, irn, jcn, a, "");
+        m.icntl(7) = 7;
+        m.call(kJobAnalyse, seconds);
+        check("analysis");
+    }
+    void fac_numeric() {
+        m.setMatrix(A.n, irn, jcn, a, "");
+        m.call(kJobFactor, seconds);
+        check("factorization");
+    }
+    void dosolver(double *x, double *b, int N, int trans) {
+        std::copy(b, b + (size_t)A.n * N, x);
+        m.id.nrhs = N;
+        m.id.lrhs = A.n;
+        m.id.rhs = x;
+        m.icntl(9) = trans ? 0 : 1;
+        m.icntl(20) = 0;
+        m.call(kJobSolve, seconds);
+        m.id.rhs = 0;
+        check("solve");
+    }
+    void UpdateState() {
+        if (A.GetReDoNumerics()) ++numericChanges;
+        if (A.GetReDoSymbolic()) ++symbolicChanges;
+        ChangeCodeState(A.n, symbolicChanges, numericChanges);
+    }
+};
+
 ContactMumps &instance() {
     static ContactMumps mumps;
     return mumps;
@@ -751,18 +1021,35 @@ long contactMumpsLowRank(Matrice_Creuse<double> *const &PtT, Matrice_Creuse<doub
     return instance().lowRank(*ht, *hp, *d, maxNew);
 }
 
-long contactMumpsOutOfCore(string *const &dir) {
+long contactMumpsOutOfCoreAbove(string *const &dir, const double &aboveMb) {
     ContactMumps &m = instance();
     const std::string d = dir ? *dir : std::string();
     if (d.size() >= sizeof(m.dbl.id.ooc_tmpdir)) return kDirectoryTooLong;
     m.outOfCoreDir = d;
+    m.outOfCoreAlways = aboveMb == 0;
+    m.outOfCoreAboveMb = aboveMb > 0 ? aboveMb : 0;
     return 0;
 }
+
+long contactMumpsOutOfCore(string *const &dir) { return contactMumpsOutOfCoreAbove(dir, 0.); }
 
 long contactMumpsOrdering(const long &mode) {
     if (mode != kOrderingAuto && mode != kOrderingAmd && mode != kOrderingNested) return kBadOrdering;
     instance().orderingMode = (int)mode;
     return 0;
+}
+
+// The block low-rank compression of the next factorizations: eps > 0 MUMPS's BLR with
+// dropping parameter eps (CNTL(7)), the solves refined to double precision; 0 full
+// rank. MPI build only (the sequential library's BLR crashes: core/sparse_solver.idp).
+long contactMumpsCompression(const double &eps) {
+#ifdef CONTACT_MUMPS_MPI
+    if (!(eps >= 0 && eps < 1)) return kBadCompression;
+    instance().compressionEps = eps;
+    return 0;
+#else
+    return eps == 0 ? 0 : kNoCompression;
+#endif
 }
 
 long contactMumpsPrecision(const long &mode) {
@@ -797,6 +1084,7 @@ template <class Real> void instanceStats(const MumpsInstance<Real> &m, KN<double
     s[6] = m.started ? (double)m.id.n : 0.;
     s[13] = m.started ? (double)m.infog(7) : -1.;
     s[19] = m.started ? (double)m.infog(21) : 0.;
+    s[21] = m.started ? m.count(35) : 0.;
 }
 
 long contactMumpsStats(KN<double> *const &s) {
@@ -816,6 +1104,8 @@ long contactMumpsStats(KN<double> *const &s) {
     (*s)[12] = m.columnSeconds;
     (*s)[14] = m.amdOperationsPerEntry;
     (*s)[15] = m.single ? 1. : 0.;
+    (*s)[20] = m.compressed ? 1. : 0.;
+    (*s)[22] = m.outOfCore ? 1. : 0.;
     (*s)[16] = m.refinementSteps;
     (*s)[17] = m.doubleFallbacks;
     (*s)[18] = m.largestRefinedError;
@@ -827,16 +1117,34 @@ long contactMumpsRelease() {
     return 0;
 }
 
+#ifndef CONTACT_MUMPS_MPI
 // The sequential MUMPS library talks to a stub MPI that wants to be initialised.
 struct StubMpi {
     StubMpi() { int argc = 0; char **argv = 0; MPI_Init(&argc, &argv); }
     ~StubMpi() { MPI_Finalize(); }
 };
+#endif
 
 }  // namespace
 
 static void Load_Init() {
+#ifdef CONTACT_MUMPS_MPI
+    int initialized = 0;
+    MPI_Initialized(&initialized);
+    if (!initialized) {
+        std::cerr << "ERROR: freefem/plugins/mpi/contact_mumps is for FreeFem++-mpi (MPI is not initialised)"
+                  << std::endl;
+        std::exit(4);
+    }
+    MPI_Comm_rank(MPI_COMM_WORLD, &processes.rank);
+    MPI_Comm_size(MPI_COMM_WORLD, &processes.size);
+    if (processes.rank > 0) serveRequests();
+    ff_atend(stopOtherRanks);
+#else
     static StubMpi mpi;
+#endif
+    addsolver<ScriptMumps>("CONTACTMUMPS", 50, 1);
+    setptrstring(def_solver, "CONTACTMUMPS");
     Global.Add("contactMumpsFactor", "(",
                new OneOperator2_<long, Matrice_Creuse<double> *, long>(contactMumpsFactor));
     Global.Add("contactMumpsFactor", "(",
@@ -847,11 +1155,14 @@ static void Load_Init() {
                new OneOperator4_<long, Matrice_Creuse<double> *, Matrice_Creuse<double> *, KN<double> *, long>(
                    contactMumpsLowRank));
     Global.Add("contactMumpsOutOfCore", "(", new OneOperator1_<long, string *>(contactMumpsOutOfCore));
+    Global.Add("contactMumpsOutOfCore", "(", new OneOperator2_<long, string *, double>(contactMumpsOutOfCoreAbove));
     Global.Add("contactMumpsOrdering", "(", new OneOperator1_<long, long>(contactMumpsOrdering));
     Global.Add("contactMumpsPrecision", "(", new OneOperator1_<long, long>(contactMumpsPrecision));
+    Global.Add("contactMumpsCompression", "(", new OneOperator1_<long, double>(contactMumpsCompression));
     Global.Add("contactMumpsThreads", "(", new OneOperator1_<long, long>(contactMumpsThreads));
     Global.Add("contactMumpsStats", "(", new OneOperator1_<long, KN<double> *>(contactMumpsStats));
     Global.Add("contactMumpsRelease", "(", new OneOperator0<long>(contactMumpsRelease));
+    Global.Add("contactMumpsProcessMemory", "(", new OneOperator1_<long, KN<double> *>(contactMumpsProcessMemory));
 }
 
 LOADFUNC(Load_Init)
