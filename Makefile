@@ -207,10 +207,13 @@ gates-study: setup
 # bench_first_active_set.csv). bench-solver and bench-3d time the previous version
 # (a scratch git worktree) beside the current tree: the Newton's linear solver, and
 # the 3D runs' cost by phase with its growth against DOFs (results/bench_3d*.csv), and the
-# 3D error tool against the graded reference (results/bench_error_tool*.csv).
+# 3D error tool against the graded reference (results/bench_error_tool*.csv). bench-scale:
+# the large 3D runs against d58614e, the runs on several processes, the largest 3D run
+# and the scaling model (results/bench_scale*.csv; BENCH_SCALE_REPEATS, BENCH_SCALE_LARGE_NX).
 .PHONY: bench
 bench: setup
-	$(VENV_PYTHON) -m driver study bench-newton bench bench-overhead bench-ordering bench-solver bench-3d bench-3d-large bench-3d-graded bench-error-tool
+	$(VENV_PYTHON) -m driver study bench-newton bench bench-overhead bench-ordering bench-solver bench-3d bench-3d-large bench-3d-graded bench-error-tool \
+	    bench-scale
 	$(VENV_PYTHON) -m driver readme
 
 # Fictitious-domain ball on slab (3D): P1 (theta = 1, 0, -1) and P2 ladders against a

@@ -79,8 +79,8 @@
 //       refinement left (process maximum), the memory of the largest process in the
 //       last factorization in MB (INFOG(21)), whether the factors in force are block
 //       low-rank (1) or not (0), the entries of the factors with their low-rank
-//       blocks compressed (INFOG(35)), and whether they are in files (1) or in
-//       memory (0).
+//       blocks compressed (INFOG(35)), whether they are in files (1) or in memory
+//       (0), and the order of the largest front (INFOG(11)).
 //   int contactMumpsRelease()
 //       frees the instance (the next factorization analyses again).
 //   int contactMumpsProcessMemory(real[int] mb)
@@ -183,7 +183,7 @@ const double kSinglePays = 1e11;             // predicted elimination operations
 const double kRefinedError = 16 * DBL_EPSILON;    // componentwise backward error the refinement aims at
 const double kAcceptedError = 64 * DBL_EPSILON;   // ... and accepts when it stops improving
 const int kGmresRestart = 12, kGmresCycles = 6;
-const int kStats = 23;
+const int kStats = 24;
 
 // M.CSR(), its row pointers M.p over entries in row order (columns increasing within
 // a row), with the entries put in that order by a counting sort first: CSR() then only
@@ -1085,6 +1085,7 @@ template <class Real> void instanceStats(const MumpsInstance<Real> &m, KN<double
     s[13] = m.started ? (double)m.infog(7) : -1.;
     s[19] = m.started ? (double)m.infog(21) : 0.;
     s[21] = m.started ? m.count(35) : 0.;
+    s[23] = m.started ? (double)m.infog(11) : 0.;
 }
 
 long contactMumpsStats(KN<double> *const &s) {
