@@ -16,9 +16,13 @@ SUDO := $(shell [ "$$(id -u)" -eq 0 ] || echo sudo)
 # libfreefem++-dev, libmumps-seq-dev, g++: to build the plugins (freefem/plugins:
 # the Newton's MUMPS instance, contact_mumps.cpp; the 2D curved cut cells, the
 # estimators' cut-edge pieces, the contact points' projections and the level-set
-# normals, curved_cells.cpp; the recovered contact pressure, pressure_recovery.cpp).
+# normals, curved_cells.cpp; the recovered contact pressure, pressure_recovery.cpp; the
+# nearest submesh element of 3D points outside a body's submesh, nearest_kept.cpp).
+# libmumps-dev, libopenmpi-dev, openmpi-bin: runs on several processes (solver.ranks,
+# docs/mpi.md): Debian's parallel MUMPS (with ScaLAPACK) for the MPI build of
+# contact_mumps, mpicxx to build it, mpirun to start FreeFem++-mpi (in freefem++).
 DEBIAN_PACKAGES := freefem++ libfreefem++ gmsh libopenblas0-pthread libfreefem++-dev libmumps-seq-dev g++ \
-	python3 python3-venv ca-certificates
+	libmumps-dev libopenmpi-dev openmpi-bin python3 python3-venv ca-certificates
 OPENBLAS := /usr/lib/x86_64-linux-gnu/openblas-pthread/libblas.so.3
 export FF_LOADPATH := /usr/lib/freefem++
 
@@ -28,8 +32,9 @@ PLUGINS := $(patsubst %.cpp,%.so,$(wildcard freefem/plugins/*.cpp))
 # what each plugin links besides FreeFEM: freefem/plugins/link_flags.txt (driver/plugins.py,
 # which builds them for an installed package, reads the same file)
 PLUGIN_FLAGS = $(shell sed -n 's/^$(1):\(.*\)/\1/p' freefem/plugins/link_flags.txt)
+MPI_PLUGINS := freefem/plugins/mpi/contact_mumps.so   # for FreeFem++-mpi (below)
 
-setup: setup-system setup-python $(PLUGINS)
+setup: setup-system setup-python $(PLUGINS) $(MPI_PLUGINS)
 
 # A plugin is rebuilt when its source or the plugins' shared header changes (ff-c++ is
 # FreeFEM's plugin compiler), in a scratch folder, then moved in place: a run that has
@@ -41,12 +46,26 @@ freefem/plugins/%.so: freefem/plugins/%.cpp $(PLUGIN_HEADERS) | setup-system
 	  && mv $$tmp/$*.so $@ && rm -rf $$tmp \
 	  || { cat $$tmp/build.log; rm -rf $$tmp; echo "ERROR: could not build $@"; exit 1; }
 
+# The Newton's MUMPS plugin for FreeFem++-mpi (several processes: solver.ranks): the same
+# source against Debian's parallel MUMPS and Open MPI (ff-c++ -mpi compiles with
+# mpicxx). FreeFem++-mpi looks for plugins in each load path's mpi/ folder, so the
+# scripts' load "contact_mumps" finds this one there and the sequential one otherwise
+# (freefem++.pref puts freefem/plugins on the load path).
+LIBS_MPI_contact_mumps := -ldmumps -lsmumps -lmumps_common -l:liblapack.so.3
+freefem/plugins/mpi/%.so: freefem/plugins/%.cpp $(PLUGIN_HEADERS) | setup-system
+	@echo "building $@"
+	@mkdir -p $(@D) && tmp=$$(mktemp -d) && cp $< $$tmp/ \
+	  && (cd $$tmp && ff-c++ -mpi -DCONTACT_MUMPS_MPI $*.cpp -I$(CURDIR)/freefem/plugins $(LIBS_MPI_$*) > build.log 2>&1) \
+	  && mv $$tmp/$*.so $@ && rm -rf $$tmp \
+	  || { cat $$tmp/build.log; rm -rf $$tmp; echo "ERROR: could not build $@"; exit 1; }
+
 # FreeFEM's plugins (msh3, iovtk, gmsh, ...) live in libfreefem++, which the
 # freefem++ package does not pull in: check for a plugin file, not the binary.
 setup-system:
 	@if ! command -v FreeFem++ >/dev/null || ! command -v gmsh >/dev/null \
 	    || [ ! -f /usr/lib/freefem++/iovtk.so ] || [ ! -f $(OPENBLAS) ] \
 	    || [ ! -f /usr/include/freefem++/ff++.hpp ] || [ ! -f /usr/include/dmumps_c.h ] || ! command -v g++ >/dev/null \
+	    || [ ! -f /usr/lib/x86_64-linux-gnu/libdmumps.so ] || ! command -v mpicxx >/dev/null || ! command -v mpirun >/dev/null \
 	    || [ ! -x /usr/bin/python3 ] || [ -z "$(wildcard /usr/lib/python3*/ensurepip/__init__.py)" ] \
 	    || [ ! -f /etc/ssl/certs/ca-certificates.crt ]; then \
 	  echo "installing Debian packages: $(DEBIAN_PACKAGES)"; \
@@ -101,9 +120,12 @@ setup-python: setup-system
 	  fi; \
 	fi
 
-# make case [CASE=cases/NAME.toml] [SET="mesh.nx=80 method.theta=1"]
+# make case [CASE=cases/NAME.toml] [SET="mesh.nx=80 method.theta=1"] [RANKS=N]
+# RANKS=N: solver.ranks = N, the run on N MPI processes of this machine (docs/mpi.md).
+RANKS ?=
+CASE_SET = $(strip $(SET) $(if $(strip $(RANKS)),solver.ranks=$(strip $(RANKS))))
 case: setup
-	$(VENV)/bin/fdcontact run $(CASE) $(if $(strip $(SET)),--set "$(SET)")
+	$(VENV)/bin/fdcontact run $(CASE) $(if $(CASE_SET),--set "$(CASE_SET)")
 
 test: setup
 	$(VENV_PYTHON) -m pytest -q tests
@@ -117,7 +139,7 @@ test-fast: setup
 
 # clean keeps $(VENV): making it again downloads every package (rm -rf $(VENV) drops it).
 clean:
-	rm -rf runs .pytest_cache $(PLUGINS)
+	rm -rf runs .pytest_cache $(PLUGINS) $(MPI_PLUGINS)
 
 # The mutation check (docs/mutation.md; not part of make test): each mutant of
 # tests/mutation/mutants.toml applied alone to a scratch copy of the checkout, the
@@ -190,10 +212,13 @@ gates-study: setup
 # bench_first_active_set.csv). bench-solver and bench-3d time the previous version
 # (a scratch git worktree) beside the current tree: the Newton's linear solver, and
 # the 3D runs' cost by phase with its growth against DOFs (results/bench_3d*.csv), and the
-# 3D error tool against the graded reference (results/bench_error_tool*.csv).
+# 3D error tool against the graded reference (results/bench_error_tool*.csv). bench-scale:
+# the large 3D runs against d58614e, the runs on several processes, the largest 3D run
+# and the scaling model (results/bench_scale*.csv; BENCH_SCALE_REPEATS, BENCH_SCALE_LARGE_NX).
 .PHONY: bench
 bench: setup
-	$(VENV_PYTHON) -m driver study bench-newton bench bench-overhead bench-ordering bench-solver bench-3d bench-3d-large bench-3d-graded bench-error-tool
+	$(VENV_PYTHON) -m driver study bench-newton bench bench-overhead bench-ordering bench-solver bench-3d bench-3d-large bench-3d-graded bench-error-tool \
+	    bench-scale
 	$(VENV_PYTHON) -m driver readme
 
 # Fictitious-domain ball on slab (3D): P1 (theta = 1, 0, -1) and P2 ladders against a

@@ -43,8 +43,11 @@ FREEFEM_ENV = {"FF_LOADPATH": FREEFEM_PLUGIN_DIR, "OMP_NUM_THREADS": "1", "OPENB
                "MKL_NUM_THREADS": "1"}
 
 
-def freefem_env():
-    return dict(os.environ, **FREEFEM_ENV)
+def freefem_env(mpi=False):
+    env = dict(os.environ, **FREEFEM_ENV)
+    if mpi and os.geteuid() == 0:   # Open MPI's mpirun refuses root without both
+        env["OMPI_ALLOW_RUN_AS_ROOT"] = env["OMPI_ALLOW_RUN_AS_ROOT_CONFIRM"] = "1"
+    return env
 
 
 def rerun_text(command):
@@ -97,6 +100,22 @@ def freefem_binary():
         raise FreeFemError("FreeFem++ not found on PATH: run 'make setup' "
                            "(Debian packages freefem++ libfreefem++)")
     return path
+
+
+def freefem_launch(ranks, mpi=False):
+    """The command that starts FreeFEM on `ranks` processes of this machine: FreeFem++, or
+    Open MPI's mpirun with FreeFem++-mpi for several processes or when the MPI build is needed
+    (mpi: solver.compression; --oversubscribe: more processes than cores still run, slowly).
+    The plugin built for FreeFem++-mpi is freefem/plugins/mpi/contact_mumps.so."""
+    if ranks == 1 and not mpi:
+        return [freefem_binary()]
+    mpirun, binary = shutil.which("mpirun"), shutil.which("FreeFem++-mpi")
+    if mpirun is None or binary is None:
+        raise FreeFemError("mpirun or FreeFem++-mpi not found on PATH: run 'make setup' "
+                           "(Debian packages openmpi-bin freefem++)")
+    if not (FREEFEM_DIR / "plugins" / "mpi" / "contact_mumps.so").is_file():
+        raise FreeFemError("freefem/plugins/mpi/contact_mumps.so is missing: run 'make setup'")
+    return [mpirun, "-np", str(ranks), "--oversubscribe", binary]
 
 
 def run_command(command, what, cwd=None, log=None):
@@ -352,8 +371,11 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
     script = Path(script) if script else FREEFEM_DIR / f"{scene['scene']['script']}.edp"
     if not script.is_file():
         raise SceneError(f"{scene['_source']}: FreeFEM script not found: {script}")
-    binary = freefem_binary()
     ensure_plugins()
+    solver = scene.get("solver", {})
+    ranks = solver.get("ranks", 1)
+    launch_freefem = freefem_launch(ranks, mpi=solver.get("compression", 0) > 0)
+    under_mpirun = len(launch_freefem) > 1
     probe_args = module.freefem_args(scene)
     if out_dir:
         final = resolve_out(out_dir)
@@ -377,16 +399,16 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
         args = module.freefem_args(scene, mesh_file=mesh_file)
         entry = write_scene_module(scene, module, script, staging)
         # -Dmacro flags must follow the script name; everything else is -key value.
-        command = [binary, "-nw", "-v", "0", str(entry)] + args + ["-outdir", str(staging)]
+        command = launch_freefem + ["-nw", "-v", "0", str(entry)] + args + ["-outdir", str(staging)]
         # FreeFEM's output is block-buffered on a pipe: line-buffer it for progress.
         stdbuf = shutil.which("stdbuf")
         launch = [stdbuf, "-oL", "-eL"] + command if stdbuf else command
         (staging / "command.txt").write_text(rerun_text(command))
         start = time.perf_counter()
         with open(staging / "freefem.log", "w") as log:
-            proc = subprocess.Popen(launch, cwd=REPO, env=freefem_env(), stdout=subprocess.PIPE,
-                                    stderr=subprocess.STDOUT, text=True, errors="replace",
-                                    pass_fds=(lock,), preexec_fn=die_with_parent)
+            proc = subprocess.Popen(launch, cwd=REPO, env=freefem_env(under_mpirun), stdout=subprocess.PIPE,
+                                    stderr=subprocess.STDOUT, text=True, errors="replace", pass_fds=(lock,),
+                                    preexec_fn=mpirun_dies_with_parent if under_mpirun else die_with_parent)
             guard = Guard(proc, limits)
             for line in proc.stdout:
                 log.write(line)
@@ -397,7 +419,7 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
             guard.stop()
         wall = time.perf_counter() - start
         guard.check(scene["scene"]["name"], proc.returncode)
-        results = check_outcome(proc.returncode, staging, scene["scene"]["name"])
+        results = check_outcome(proc.returncode, staging, scene["scene"]["name"], ranks)
         paraview_files(staging, results)
         results["wall_s"] = wall
         results["peak_rss_mb"] = guard.peak_mb
@@ -440,6 +462,15 @@ def die_with_parent():
 PR_SET_PDEATHSIG = 1
 
 
+def mpirun_dies_with_parent():
+    """As die_with_parent for mpirun, by SIGTERM: mpirun then stops the FreeFEM processes
+    it started (SIGKILL would leave them running)."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    if os.getppid() == 1:
+        os._exit(1)
+
+
 def run_limits(scene):
     """(seconds, MiB) a FreeFEM run may take: limits.time_s and limits.memory_mb (default 95 %
     of the memory available now), and the process's own address-space limit (ulimit -v)."""
@@ -469,23 +500,30 @@ class Guard:
         return self.peak_kb / 1024.0
 
     def watch(self):
-        path = Path(f"/proc/{self.proc.pid}/status")
+        peaks = {}   # pid -> VmHWM (kB) of FreeFEM and, under mpirun, every process below it
         while not self.done.wait(0.05):
-            try:
-                for line in path.read_text().splitlines():
-                    if line.startswith("VmHWM:"):
-                        self.peak_kb = max(self.peak_kb, int(line.split()[1]))
-            except (OSError, ValueError):
+            pids = process_tree(self.proc.pid)
+            if self.proc.pid not in pids:
                 return
+            for pid in pids:
+                try:
+                    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+                        if line.startswith("VmHWM:"):
+                            peaks[pid] = max(peaks.get(pid, 0), int(line.split()[1]))
+                except (OSError, ValueError):
+                    continue
+            # mpirun's own memory aside: the processes it starts are the run
+            self.peak_kb = sum(kb for pid, kb in peaks.items() if pid != self.proc.pid or len(pids) == 1)
             if self.peak_mb > self.limits["memory_mb"]:
                 self.reason = "memory"
             elif time.monotonic() - self.start > self.limits["time_s"]:
                 self.reason = "time"
             if self.reason:
-                try:
-                    self.proc.kill()
-                except OSError:
-                    pass
+                for pid in reversed(pids):
+                    try:
+                        os.kill(pid, signal.SIGKILL)
+                    except OSError:
+                        pass
                 return
 
     def stop(self):
@@ -507,6 +545,28 @@ class Guard:
             raise SceneError(f"scene {name}: FreeFEM died ({exit_name(returncode)}) after using "
                              f"{self.peak_mb:.0f} MiB under this process's memory limit (ulimit -v "
                              f"{lim['ulimit_mb']:.0f} MiB): out of memory; coarsen the mesh or raise the limit")
+
+
+def process_tree(pid):
+    """pid and its descendants (from /proc), parents first; [] when pid is gone."""
+    children = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        ppid = int(stat[stat.rindex(")") + 2:].split()[1])
+        children.setdefault(ppid, []).append(int(entry.name))
+    if not Path(f"/proc/{pid}").exists():
+        return []
+    tree, todo = [], [pid]
+    while todo:
+        p = todo.pop(0)
+        tree.append(p)
+        todo += sorted(children.get(p, []))
+    return tree
 
 
 # How a process ends when an allocation fails: a segmentation fault, an abort (std::bad_alloc),
@@ -571,9 +631,21 @@ def keep_failure(staging, final, error, reason):
         error.detail = f"FreeFEM stopped; {where}; {final}{unchanged}"
 
 
-def check_outcome(returncode, staging, name):
+# mpirun's report of a process that died: "... process rank 1 with PID 42 on node vm exited on
+# signal 9 (Killed)."
+RANK_DIED = re.compile(r"process rank (\d+) with PID \d+ on node (\S+) exited on signal (\d+)(?: \(([^)]*)\))?")
+
+
+def check_outcome(returncode, staging, name, ranks=1):
     """Map FreeFEM's exit and files to a result dict or a DriverError."""
     log_text = (staging / "freefem.log").read_text(errors="replace")
+    died = RANK_DIED.search(log_text)
+    if died and returncode != 0:
+        rank, node, signum, what = died.groups()
+        raise FreeFemError(f"scene {name}: MPI rank {rank} of {ranks} (node {node}) died on signal {signum}"
+                           + (f" ({what})" if what else "")
+                           + (", out of memory?" if int(signum) == signal.SIGKILL else "")
+                           + ": mpirun stopped the whole run")
     if returncode == 3 and (staging / "failure.json").is_file():
         failure = parse_json_file(staging / "failure.json")
         raise NewtonError(f"scene {name}: {failure.get('message', 'Newton failure')} "

@@ -311,7 +311,11 @@ def two_body_solver_schema(floating_body, contact_points):
                               "factorization (Woodbury) while its columns cost less than a factorization"),
         "out_of_core": Field("bool", flag="out_of_core", default=False,
                              doc="MUMPS keeps the factors in files of the run's folder instead of memory "
-                                 "(deleted when the solve ends): less memory for large 3D runs"),
+                                 "(deleted when the solve ends), whatever their size"),
+        "out_of_core_mb": Field("float", flag="out_of_core_mb", default=500.0, check=at_least(0.0), unit="MB",
+                                doc="factors MUMPS predicts larger than this go to files of the run's folder "
+                                    "when it has twice their size free (less memory for large 3D runs, about "
+                                    "the same time); 0: in memory unless out_of_core"),
         "threads": Field("int", flag="threads", default=1, check=between(1, 256),
                          doc="BLAS threads of MUMPS's dense kernels: more pay on large 3D runs; the last "
                              "digits of the results then differ from a one-thread run (the same from run to "
@@ -320,6 +324,21 @@ def two_body_solver_schema(floating_body, contact_points):
                           doc="MUMPS's fill-reducing ordering: auto takes AMD unless its predicted "
                               "factorization does more than 6000 operations per matrix entry (then Scotch's "
                               "nested dissection, whose ordering costs more but pays on large 3D systems)"),
+        "precision": Field("str", flag="precision", default="auto", choices=("auto", "double", "single"),
+                           doc="precision of MUMPS's factors: single halves their memory and, on large 3D "
+                               "systems, their time, and every solve is refined to double precision (GMRES "
+                               "on the double-precision matrix); auto takes single when AMD's predicted "
+                               "factorization exceeds 2e10 operations, double otherwise"),
+        "compression": Field("float", flag="compression", default=0.0, check=Range(0.0, 1.0, hi_open=True),
+                             unit="1",
+                             doc="MUMPS's block low-rank factorization with this dropping parameter (CNTL(7), "
+                                 "relative to the scaled matrix; 0: full rank): smaller, cheaper factors, every "
+                                 "solve refined to double precision; needs the MPI build (the run goes through "
+                                 "mpirun, also on one process)"),
+        "ranks": Field("int", default=1, check=between(1, 1024),
+                       doc="processes of the run: above 1, FreeFem++-mpi under mpirun on this machine, the "
+                           "Newton's factorizations and solves distributed by parallel MUMPS (docs/design.md; "
+                           "several machines: docs/mpi.md); the same numbers as one process to solver round-off"),
         "allow_unbalanced": Field("bool", flag="allow_unbalanced", default=False,
                                   doc=f"keep a run whose pins or mass term carry more than 1e-6 of the "
                                       f"{floating_body}'s load beyond the solve's round-off (flagged in "

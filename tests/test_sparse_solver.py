@@ -6,11 +6,18 @@ solver options on whole runs of the disk on slab (P2, NX = 80, a few seconds eac
 import json
 import re
 
+import numpy as np
+import pandas as pd
 import pytest
 
 from conftest import run_freefem
 
 pytestmark = pytest.mark.freefem      # every test here starts FreeFEM (make test-fast leaves them out)
+
+
+def relative(a, b):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return float(np.abs(a - b).max() / np.abs(a).max())
 
 PLUGIN_CHECK = r"""
 load "freefem/plugins/contact_mumps"
@@ -248,3 +255,85 @@ def test_a_thread_count_out_of_range_is_refused(tmp_path):
         proc = run_freefem(script, "-nx", 4, "-threads", 0, "-outdir", tmp_path / script)
         assert proc.returncode == 2 and "option -threads: 0 must lie in [1, 256]" in proc.stdout + proc.stderr
         assert not (tmp_path / script / "results.json").exists()
+
+
+PRECISION_CHECK = r"""
+include "freefem/lib/core/sparse_solver.idp"
+mesh Th = square(30, 30);
+fespace Vh(Th, P2);
+varf a(u, v) = int2d(Th)(dx(u)*dx(v) + dy(u)*dy(v) + 0.3*dx(u)*v) + on(1, 2, 3, 4, u = 0);
+varf l(u, v) = int2d(Th)(v);
+matrix A = a(Vh, Vh);
+real[int] b = l(0, Vh), x(b.n), y(b.n), s(1);
+set(A, solver = sparsesolver);
+y = A^-1*b;
+requireThat(contactMumpsPrecision(1) == 0, "precision");
+int info = contactMumpsFactor(A, 1);
+info = contactMumpsSolve(x, b);
+contactMumpsStats(s);
+x -= y;
+cout << "SINGLE " << info << " " << (x.linfty/y.linfty) << " " << s[15] << " " << s[16] << " " << s[17] << " " << s[18] << endl;
+// the same system scaled into single precision's subnormal range, where its
+// factors hold no digit: factorized again in double precision
+matrix T = 1e-44*A;
+real[int] bt = 1e-44*b, xt(b.n);
+info = contactMumpsFactor(T, 1);
+info = contactMumpsSolve(xt, bt);
+contactMumpsStats(s);
+xt -= y;
+cout << "FALLBACK " << info << " " << (xt.linfty/y.linfty) << " " << s[15] << " " << s[17] << endl;
+contactMumpsRelease();
+requireThat(contactMumpsPrecision(3) == -1009, "bad precision code");
+cout << "COMPRESSION " << contactMumpsCompression(1e-4) << endl;
+"""
+
+
+def test_single_precision_factors_are_refined_to_double_precision(tmp_path):
+    script = tmp_path / "precision_check.edp"
+    script.write_text(PRECISION_CHECK)
+    proc = run_freefem(script)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    out = {m.group(1): m.group(2).split() for m in re.finditer(r"^([A-Z_]+) (.*)$", proc.stdout, re.M)}
+    info, diff, single, steps, fallbacks, error = out["SINGLE"]
+    # single-precision factors, refined by a few GMRES steps to FreeFEM's double-precision
+    # MUMPS answer (measured: 4 steps, 1.1e-15 apart, backward error 2.4e-16)
+    assert info == "0" and single == "1" and fallbacks == "0"
+    assert 2 <= int(steps) <= 6 and float(diff) < 1e-14 and float(error) <= 16*2.2e-16
+    # the refinement cannot reach double precision from factors without a digit: the
+    # matrix is factorized again in double (measured 1.3e-15 from the answer)
+    info, diff, single, fallbacks = out["FALLBACK"]
+    assert info == "0" and single == "0" and fallbacks == "1" and float(diff) < 1e-13
+    # block low-rank factors need the MPI build (tests/test_mpi.py)
+    assert out["COMPRESSION"] == ["-1010"]
+
+
+def test_single_precision_run_gives_the_double_precision_answer(tmp_path):
+    runs = {}
+    for precision in ("double", "single"):
+        out = tmp_path / precision
+        proc = run_freefem("fd_contact_3d.edp", "-Ddegree=2", "-nx", 8, "-estimators", 0, "-vtu", 0,
+                           "-precision", precision, "-outdir", out)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        runs[precision] = json.loads((out / "results.json").read_text()), pd.read_csv(out / "contact_pressure.csv")
+    (double, pd_double), (single, pd_single) = runs["double"], runs["single"]
+    assert double["newton"]["precision"] == "double" and single["newton"]["precision"] == "single"
+    assert single["newton"]["refinement_steps"] > 0 and single["newton"]["precision_fallbacks"] == 0
+    assert single["newton"]["iterations"] == double["newton"]["iterations"]
+    # measured: centre 1.2e-14, force 2.0e-13, pressure 3.4e-13 of their largest value
+    assert relative(double["probes"]["centre"], single["probes"]["centre"]) < 1e-13
+    assert relative(double["contact"]["force_on_body1"], single["contact"]["force_on_body1"]) < 1e-12
+    assert relative(pd_double.pressure, pd_single.pressure) < 2e-12
+
+
+def test_factors_go_to_files_above_the_size_given(tmp_path):
+    runs = {}
+    for mb in (0, 1):   # 0: in memory; 1: the factors (about 10 MB) in files of the run's folder
+        out = tmp_path / f"mb{mb}"
+        proc = run_freefem("fd_contact_3d.edp", "-Ddegree=2", "-nx", 6, "-estimators", 0, "-vtu", 0, "-csv", 0,
+                           "-out_of_core_mb", mb, "-outdir", out)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        runs[mb] = json.loads((out / "results.json").read_text())
+        assert sorted(p.name for p in out.iterdir()) == ["results.json"]
+    assert runs[0]["newton"]["factors_out_of_core"] == 0 and runs[1]["newton"]["factors_out_of_core"] == 1
+    centre = runs[0]["probes"]["centre"][2]
+    assert abs(runs[1]["probes"]["centre"][2] - centre) <= 1e-12*abs(centre)

@@ -46,6 +46,7 @@ REGISTRY = {
     "bench-3d-graded": ("bench", "bench3d_graded"),
     "bench-ordering": ("bench", "ordering"),
     "bench-error-tool": ("bench", "error_tool_bench"),
+    "bench-scale": ("bench_scale", "bench_scale"),
 }
 
 
