@@ -46,7 +46,8 @@ SCHEMA = {
                     doc="cells along x (h = width/nx); along y and z as many as keep them cubic (at most 150: a "
                         "P1 run at nx = 48 takes about 2 GiB)"),
         "grade_h": Field("float", flag="grade_h", default=0.0, check=at_least(0.0), unit="length",
-                         doc="0: uniform; else one tetgen pass refines toward the contact point to this edge size"),
+                         doc="0: uniform; else tetgen refines toward the contact point to this edge size "
+                             "(mesh.grade_passes)"),
         "grade_radius": Field("float", flag="grade_radius", default=0.1, check=at_least(0.0), unit="length",
                               doc="edge size grade_h within this distance of the contact point"),
         "grade_point": Field("vector", derived="grade_x grade_y grade_z", default=None, length=3, unit="length",
@@ -54,6 +55,10 @@ SCHEMA = {
                                  "first probe)"),
         "grade_slope": Field("float", flag="grade_slope", default=0.25, check=positive, unit="1",
                              doc="growth of the edge size with the distance beyond grade_radius"),
+        "grade_passes": Field("int", flag="grade_passes", default=1, check=between(1, 8),
+                              doc="tetgen passes of the grading, each reading the wanted size on the mesh the "
+                                  "last one made (one pass reads it at the background's centroids: near the "
+                                  "point the elements stay about twice grade_h); stops when a pass adds < 2 %"),
     },
     "body1": body_schema({
         "shape": Field("tree", default="ball", doc="a shape table (docs/scenes.md, 'Shapes'), or the legacy "
