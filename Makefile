@@ -233,6 +233,16 @@ scenes-study: setup
 	$(VENV_PYTHON) -m driver study scenes
 	$(VENV_PYTHON) -m driver readme
 
+# Hertz's sphere on sphere (cases/hertz_spheres.toml) against Hertz (docs/hertz-3d.md): the
+# settings that suit 3D (gamma0, stabilization, contact points, cut geometry, grading passes;
+# results/hertz_spheres_settings.csv), the recovery's options on the shipped run's points
+# (results/hertz_spheres_recovery.csv), then the scene as shipped, coarser, in P1 and with the
+# former 3D defaults (results/hertz_spheres.csv, README table).
+.PHONY: hertz-3d-study
+hertz-3d-study: setup
+	$(VENV_PYTHON) -m driver study hertz-3d-settings hertz-3d-recovery hertz-3d
+	$(VENV_PYTHON) -m driver readme
+
 # The curved cut geometry against the P1 one (docs/curved-geometry.md): cut-cell
 # accuracy, disk-on-slab convergence against a curved P2 NX = 320 reference
 # (computed once into runs/reference/), cost of the NX = 80 run, and the smooth

@@ -15,7 +15,8 @@ Rules across keys (check below): the box is not empty; each body meets the box a
 they do not overlap at the start; a probe lies in its body; A, B and C lie inside
 body 1, A and B on one vertical line at different heights, C off it in x; each
 body gives lambda and mu or E and nu (not both); adapt.steps > 0 needs
-output.estimators; adapt.switch starts with r, holds a and no p.
+output.estimators; adapt.switch starts with r, holds a and no p. method.gamma0
+defaults to 0.2 for theta <= 0 and 1/200 for theta > 0.
 """
 
 import numpy as np
@@ -46,7 +47,8 @@ SCHEMA = {
                     doc="cells along x (h = width/nx); along y and z as many as keep them cubic (at most 150: a "
                         "P1 run at nx = 48 takes about 2 GiB)"),
         "grade_h": Field("float", flag="grade_h", default=0.0, check=at_least(0.0), unit="length",
-                         doc="0: uniform; else one tetgen pass refines toward the contact point to this edge size"),
+                         doc="0: uniform; else tetgen refines toward the contact point to this edge size "
+                             "(mesh.grade_passes)"),
         "grade_radius": Field("float", flag="grade_radius", default=0.1, check=at_least(0.0), unit="length",
                               doc="edge size grade_h within this distance of the contact point"),
         "grade_point": Field("vector", derived="grade_x grade_y grade_z", default=None, length=3, unit="length",
@@ -54,6 +56,10 @@ SCHEMA = {
                                  "first probe)"),
         "grade_slope": Field("float", flag="grade_slope", default=0.25, check=positive, unit="1",
                              doc="growth of the edge size with the distance beyond grade_radius"),
+        "grade_passes": Field("int", flag="grade_passes", default=1, check=between(1, 8),
+                              doc="tetgen passes of the grading, each reading the wanted size on the mesh the "
+                                  "last one made (one pass reads it at the background's centroids: near the "
+                                  "point the elements stay about twice grade_h); stops when a pass adds < 2 %"),
     },
     "body1": body_schema({
         "shape": Field("tree", default="ball", doc="a shape table (docs/scenes.md, 'Shapes'), or the legacy "
@@ -82,13 +88,17 @@ SCHEMA = {
                              doc="u1_y = 0 at C (rotation about z), inside the ball, off the line AB in x"),
     },
     "method": dict(two_body_method_schema(1), **{
-        "geometry": Field("str", flag="geometry", default="p1", choices=("p1", "curved"),
+        "gamma0": Field("float", flag="gamma0", default=None, check=positive, unit="1",
+                        doc="Nitsche parameter, gamma = gamma0 h_K / muStar (1/stress with gamma_scaling none); "
+                            "default 0.2 for theta <= 0 (a 3D contact zone stays active), 1/200 for theta > 0 "
+                            "(coercivity) (docs/hertz-3d.md)"),
+        "geometry": Field("str", flag="geometry", default="curved", choices=("p1", "curved"),
                           doc="cut geometry: curved integrates on the exact level set of the shapes "
-                              "(docs/curved-geometry.md; the 3D default stays p1 until the 3D studies are "
-                              "rerun on it); p1 on the P1 interpolant of each level set (polyhedra, volume "
-                              "error O(h^2))"),
+                              "(docs/curved-geometry.md: the load is the body force times the exact volume); "
+                              "p1 on the P1 interpolant of each level set (polyhedra, volume error O(h^2))"),
         "stabilization": Field("str", flag="stabilization", default="auto", choices=STABILIZATIONS,
-                               doc="auto: neighbour for theta > 0 (coercivity on cut elements), none otherwise"),
+                               doc="auto: neighbour for every theta (coercivity on cut elements for theta > 0, "
+                                   "the multiplier's stress on badly cut elements for any)"),
         "gamma_scaling": Field("str", flag="gamma_scaling", default="shear", choices=("shear", "none"),
                                doc="shear: gamma = gamma0 h_K / muStar, muStar = 2 mu1 mu2/(mu1 + mu2) (gamma0 "
                                    "dimensionless); none: gamma = gamma0 h_K (gamma0 in 1/stress)"),
@@ -130,8 +140,15 @@ def default_fix_points(bodies):
     return c + [c[0], c[1], c[2] + d], [c[0] + d, c[1], c[2]]
 
 
+# Nitsche's gamma0 when the scene gives none (the script's default, fd3d/params.idp)
+def default_gamma0(theta):
+    return 1.0 / 200.0 if theta > 0 else 0.2
+
+
 def check(scene, source):
     bodies = check_two_bodies(scene, source, 3, LEGACY_SHAPES, LEGACY_KEYS)
+    if scene["method"]["gamma0"] is None:
+        scene["method"]["gamma0"] = default_gamma0(scene["method"]["theta"])
     if not scene["adapt"]["switch"].startswith("r") or "a" not in scene["adapt"]["switch"] or "p" in scene["adapt"]["switch"]:
         raise SceneError(f"{source}: key 'adapt.switch': tetgreconstruction needs 'r' first, 'a', and no 'p'")
     rigid = scene["rigid"]

@@ -367,8 +367,16 @@ def hertz():
     return markdown_table(pd.DataFrame([{
         "half-width a (Hertz)": f"{t.a_hertz:.5f}", "measured": f"{t.half_width:.5f}",
         "error": f"{100 * t.half_width_error:.2f} %", "force - P": f"{t.force_error:.2g}",
-        "pressure vs Hertz (rel. L2)": f"{100 * t.pressure_l2_error:.1f} %", "DOFs": int(t.dofs),
+        "peak recovered": f"{100 * t.peak_recovered_error:+.2f} %",
+        "recovered vs Hertz (rel. L2)": f"{100 * t.recovered_l2_error:.1f} %",
+        "raw vs Hertz (rel. L2)": f"{100 * t.pressure_l2_error:.1f} %", "DOFs": int(t.dofs),
         "wall": f"{t.wall_s:.0f} s"}]))
+
+
+def hertz_spheres_table(name, formatter):
+    from driver.studies import hertz3d
+
+    return getattr(hertz3d, formatter)(pd.read_csv(RESULTS / name))
 
 
 def scenes_table():
@@ -511,6 +519,9 @@ def mutation_totals():
 TABLES = {
     **{name: functools.partial(stamped_bench_table, name) for name in STAMPED_BENCH_TABLES},
     "hertz": hertz,
+    "hertz_spheres": functools.partial(hertz_spheres_table, "hertz_spheres.csv", "hertz_table"),
+    "hertz_spheres_settings": functools.partial(hertz_spheres_table, "hertz_spheres_settings.csv", "settings_table"),
+    "hertz_spheres_recovery": functools.partial(hertz_spheres_table, "hertz_spheres_recovery.csv", "recovery_table"),
     "mutation": mutation,
     "mutation_totals": mutation_totals,
     "scenes": scenes_table,

@@ -7,6 +7,7 @@ The closed-form accuracy of the fit is tests/test_outputs.py's."""
 
 import numpy as np
 import pytest
+import scipy.linalg
 
 from conftest import run_freefem
 
@@ -18,7 +19,7 @@ pytestmark = pytest.mark.freefem      # every test here starts FreeFEM (make tes
 RECOVERY_SCRIPT = r"""
 include "freefem/lib/core/args.idp"
 include "freefem/lib/core/pressure_recovery.idp"
-int dim = argInt("dim", 3), n = argInt("n", 3000);
+int dim = argInt("dim", 3), n = argInt("n", 3000), degree = argInt("degree", 1), activeOnly = argInt("active_only", 0);
 string out = argString("out", "recovery.txt");
 real R = 0.25;
 real[int] qx(n), qy(n), qz(n), nx(n), ny(n), nz(n), qw(n), p(n), rad(n), rec(n);
@@ -38,7 +39,8 @@ for (int i = 0; i < n; i++) {
     real low = (dim == 3) ? qz[i] : qy[i], r2 = (dim == 3) ? qx[i]^2 + qy[i]^2 : qx[i]^2;
     p[i] = (low < -0.2) ? max(0., 1. - r2/0.12^2)*(1. + 0.1*sin(37.*i)) : 0.;
 }
-pressureRecovery(dim, qx, qy, qz, nx, ny, nz, qw, p, rad, rec)
+if (degree == 1 && activeOnly == 0) { pressureRecovery(dim, qx, qy, qz, nx, ny, nz, qw, p, rad, rec) }
+else { pressureRecoveryWith(dim, degree, activeOnly, qx, qy, qz, nx, ny, nz, qw, p, rad, rec) }
 ofstream f(out);
 f.precision(17);
 for (int i = 0; i < n; i++)
@@ -47,10 +49,31 @@ for (int i = 0; i < n; i++)
 """
 
 
-def brute_force(dim, x, normal, w, p, radius):
-    """The fit of core/pressure_recovery.idp at every point, over all points within its radius."""
+def quadratic_constant(basis, w, p):
+    """The constant term of the weighted least-squares quadratic on the basis columns (1, s,
+    (t)), or None where the plugin's elimination finds a pivot below 1e-10 of the largest
+    diagonal entry (it then keeps the plane's value)."""
+    cols = [basis[:, 0], basis[:, 1]] + ([basis[:, 2]] if basis.shape[1] == 3 else [])
+    if len(cols) == 3:
+        s, t = cols[1], cols[2]
+        cols += [s * s, s * t, t * t]
+    else:
+        cols += [cols[1] * cols[1]]
+    q = np.column_stack(cols)
+    m, b = q.T @ (w[:, None] * q), q.T @ (w * p)
+    upper = scipy.linalg.lu(m)[2]
+    if np.abs(np.diag(upper)).min() <= 1e-10 * np.abs(np.diag(m)).max():
+        return None
+    return np.linalg.solve(m, b)[0]
+
+
+def brute_force(dim, x, normal, w, p, radius, degree=1, active_only=False):
+    """The fit of core/pressure_recovery.idp at every point, over all points within its radius
+    (degree 2: the quadratic's constant term; active_only: 0 where p is 0)."""
     rec = np.zeros(len(p))
     for i in range(len(p)):
+        if active_only and not p[i] > 0:
+            continue
         d = x - x[i]
         near = np.einsum("ij,ij->i", d, d) < radius[i] ** 2 * (1 + 1e-12)
         n = normal[i]
@@ -67,6 +90,9 @@ def brute_force(dim, x, normal, w, p, radius):
         a = b[0] / m[0, 0]
         if np.linalg.det(m) > 1e-8 * m[0, 0] ** (dim):
             a = np.linalg.solve(m, b)[0]
+        if degree == 2:
+            quadratic = quadratic_constant(basis, w[near], p[near])
+            a = a if quadratic is None else quadratic
         rec[i] = max(a, 0.0)
     return rec
 
@@ -82,3 +108,19 @@ def test_recovery_matches_the_brute_force_fit_on_mixed_radii(tmp_path, dim, n):
     expected = brute_force(dim, x, normal, w, p, radius)
     assert (p > 0).sum() > 50 and (expected > 0).sum() > 50   # the check has a contact zone
     assert np.abs(rec - expected).max() <= 1e-12 * p.max()
+
+
+@pytest.mark.parametrize("dim, n", [(3, 3000), (2, 1500)])
+def test_quadratic_recovery_on_the_active_points_matches_the_brute_force_fit(tmp_path, dim, n):
+    """The 3D recovery's options (pressureRecoveryWith: a quadratic fit, 0 at the inactive
+    points) against the same fit by brute force, in 3D and 2D."""
+    script, out = tmp_path / "recovery.edp", tmp_path / "recovery.txt"
+    script.write_text(RECOVERY_SCRIPT)
+    proc = run_freefem(script, "-dim", dim, "-n", n, "-degree", 2, "-active_only", 1, "-out", out)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    data = np.loadtxt(out)
+    x, normal, w, p, radius, rec = data[:, 0:3], data[:, 3:6], data[:, 6], data[:, 7], data[:, 8], data[:, 9]
+    expected = brute_force(dim, x, normal, w, p, radius, degree=2, active_only=True)
+    assert (expected > 0).sum() > 50
+    assert (rec[p == 0] == 0).all()
+    assert np.abs(rec - expected).max() <= 1e-13 * p.max()   # measured 4.1e-15 (3D), 2.5e-15 (2D)

@@ -26,18 +26,24 @@ def hertz_solution():
 
 
 def hertz_row(results, folder):
-    """Half-width (half the extent of the active points), total force and the relative
-    L2 difference of the pressure from Hertz's over the zone |x| < a."""
+    """Half-width (half the extent of the active points), total force, the relative L2
+    difference of the raw and the recovered pressure from Hertz's over the zone |x| < a and
+    the recovered peak against p0."""
     a, p0 = hertz_solution()
     x0, x1 = results["contact"]["active_extent"]["x"]
     s = pd.read_csv(folder / "contact_pressure.csv")
     zone = s[(s.x.abs() < a) & (s.y < 0.05)]
     exact = p0 * np.sqrt(1 - zone.x ** 2 / a ** 2)
-    profile = math.sqrt(np.sum(zone.weight * (zone.pressure - exact) ** 2) / np.sum(zone.weight * exact ** 2))
+
+    def profile(pressure):
+        return math.sqrt(np.sum(zone.weight * (pressure - exact) ** 2) / np.sum(zone.weight * exact ** 2))
+
     return dict(a_hertz=a, half_width=(x1 - x0) / 2, half_width_error=abs((x1 - x0) / 2 - a) / a,
                 force=results["contact"]["force_on_body1"][1], force_error=abs(results["contact"]["force_on_body1"][1]
                                                                             - HERTZ_P),
-                p0_hertz=p0, pressure_l2_error=profile)
+                p0_hertz=p0, pressure_l2_error=profile(zone.pressure),
+                recovered_l2_error=profile(zone.pressure_recovered),
+                peak_recovered_error=results["contact"]["max_pressure_recovered"] / p0 - 1)
 
 
 def scenes():

@@ -17,6 +17,13 @@
 //   pRec (resized to the number of points) = the recovered pressure at each point;
 //   dim 2 reads qz and nqz but takes the tangent (-ny, nx). Returns the number of
 //   points fitted, -1 when the arrays' sizes differ or a radius is not positive.
+//   int pressureRecoveryFitWith(real[int] options, qx, qy, qz, nqx, nqy, nqz, qw,
+//                               pRaw, radius, pRec)
+//   the same with options = [dim, degree, activeOnly]: a fit of the given degree (1:
+//   the plane above; 2: adds the squares and the product of the tangential
+//   coordinates), and with activeOnly = 1 only at the points whose raw pressure is
+//   positive (the active points: the law's multiplier is positive exactly there), the
+//   others recovering 0. Returns as above (-1 also for options not of that form).
 #include "ff++.hpp"
 #include "script_powers.hpp"   // sq, cube: x^2, x^3 as the script computes them
 
@@ -39,7 +46,59 @@ double dot(const std::vector<double> &a, const std::vector<double> &b) {
     return s;
 }
 
-long recover(int dim, const KN_<double> &qx, const KN_<double> &qy, const KN_<double> &qz, const KN_<double> &nqx,
+// Solves the symmetric system m x = b of size n (row-major) by Gaussian elimination
+// with partial pivoting; false when a pivot falls below tol times the largest
+// diagonal entry (the window's points do not determine the fit).
+bool solveSmall(int n, std::vector<double> m, std::vector<double> b, double tol, std::vector<double> &x) {
+    double scale = 0;
+    for (int i = 0; i < n; i++) scale = std::max(scale, fabs(m[i * n + i]));
+    for (int c = 0; c < n; c++) {
+        int piv = c;
+        for (int r = c + 1; r < n; r++)
+            if (fabs(m[r * n + c]) > fabs(m[piv * n + c])) piv = r;
+        if (!(fabs(m[piv * n + c]) > tol * scale)) return false;
+        if (piv != c) {
+            for (int k = 0; k < n; k++) std::swap(m[c * n + k], m[piv * n + k]);
+            std::swap(b[c], b[piv]);
+        }
+        for (int r = c + 1; r < n; r++) {
+            double f = m[r * n + c] / m[c * n + c];
+            for (int k = c; k < n; k++) m[r * n + k] -= f * m[c * n + k];
+            b[r] -= f * b[c];
+        }
+    }
+    x.assign(n, 0.);
+    for (int r = n - 1; r >= 0; r--) {
+        double v = b[r];
+        for (int k = r + 1; k < n; k++) v -= m[r * n + k] * x[k];
+        x[r] = v / m[r * n + r];
+    }
+    return true;
+}
+
+// The constant term of the quadratic fit a + b s + c t + d s^2 + e s t + f t^2 (2D:
+// a + b s + d s^2) of p with weights w; false when the window does not determine it.
+bool quadraticFit(int dim, const std::vector<double> &w, const std::vector<double> &s, const std::vector<double> &t,
+                  const std::vector<double> &p, double &a) {
+    int n = (dim == 3) ? 6 : 3;
+    std::vector<double> m(n * n, 0.), b(n, 0.), phi(n), x;
+    for (size_t c = 0; c < w.size(); c++) {
+        if (dim == 3) {
+            phi[0] = 1; phi[1] = s[c]; phi[2] = t[c]; phi[3] = s[c] * s[c]; phi[4] = s[c] * t[c]; phi[5] = t[c] * t[c];
+        } else {
+            phi[0] = 1; phi[1] = s[c]; phi[2] = s[c] * s[c];
+        }
+        for (int i = 0; i < n; i++) {
+            b[i] += w[c] * phi[i] * p[c];
+            for (int j = 0; j < n; j++) m[i * n + j] += w[c] * phi[i] * phi[j];
+        }
+    }
+    if (!solveSmall(n, m, b, 1e-10, x)) return false;
+    a = x[0];
+    return true;
+}
+
+long recover(int dim, int degree, bool activeOnly, const KN_<double> &qx, const KN_<double> &qy, const KN_<double> &qz, const KN_<double> &nqx,
              const KN_<double> &nqy, const KN_<double> &nqz, const KN_<double> &qw, const KN_<double> &pRaw,
              const KN_<double> &radius, KN<double> &pRec) {
     long n = qx.N();
@@ -86,6 +145,7 @@ long recover(int dim, const KN_<double> &qx, const KN_<double> &qy, const KN_<do
     std::vector<std::pair<double, long>> near;
     std::vector<double> dx, dy, dz, w, p, s, t, ws, wt;
     for (long i = 0; i < n; i++) {
+        if (activeOnly && !(pRaw[i] > 0)) continue;
         if (qx[i] < low[0] || qx[i] > high[0] || qy[i] < low[1] || qy[i] > high[1] || qz[i] < low[2]
             || qz[i] > high[2])
             continue;
@@ -159,6 +219,13 @@ long recover(int dim, const KN_<double> &qx, const KN_<double> &qy, const KN_<do
             double det = m00 * m11 - sq(m01);
             if (det > 1e-8 * sq(m00)) a = (b0 * m11 - m01 * b1) / det;
         }
+        // degree 2: the quadratic's constant term where the window determines it (else
+        // the plane's): the plane's value at x_i is the window's weighted mean minus a
+        // term of the curvature times radius^2, which flattens a peak a few windows wide
+        if (degree == 2) {
+            double aq;
+            if (quadraticFit(dim, w, s, t, p, aq)) a = aq;
+        }
         pRec[i] = std::max(a, 0.);
         fitted++;
     }
@@ -188,12 +255,46 @@ class PressureRecoveryFit : public E_F0mps {
         long n = a[0]->N();
         for (int k = 0; k < 9; k++)
             if (a[k]->N() != n) return -1L;
-        return recover(d, *a[0], *a[1], *a[2], *a[3], *a[4], *a[5], *a[6], *a[7], *a[8], *a[9]);
+        return recover(d, 1, false, *a[0], *a[1], *a[2], *a[3], *a[4], *a[5], *a[6], *a[7], *a[8], *a[9]);
+    }
+};
+
+// pressureRecoveryFitWith(options, qx, qy, qz, nqx, nqy, nqz, qw, pRaw, radius, pRec),
+// options = [dim, degree, activeOnly]
+class PressureRecoveryFitWith : public E_F0mps {
+  public:
+    typedef long Result;
+    Expression arrays[11];
+
+    explicit PressureRecoveryFitWith(const basicAC_F0 &args) {
+        args.SetNameParam();
+        for (int a = 0; a < 11; a++) arrays[a] = to<KN<double> *>(args[a]);
+    }
+    static ArrayOfaType typeargs() {
+        aType v = atype<KN<double> *>();
+        return ArrayOfaType(v, v, v, v, v, v, v, v, v, v, v);
+    }
+    static E_F0 *f(const basicAC_F0 &args) { return new PressureRecoveryFitWith(args); }
+
+    AnyType operator()(Stack stack) const {
+        KN<double> *a[11];
+        for (int k = 0; k < 11; k++) a[k] = GetAny<KN<double> *>((*arrays[k])(stack));
+        const KN<double> &o = *a[0];
+        if (o.N() != 3) return -1L;
+        long d = lround(o[0]), g = lround(o[1]), act = lround(o[2]);
+        if ((d != 2 && d != 3) || (g != 1 && g != 2) || (act != 0 && act != 1)) return -1L;
+        long n = a[1]->N();
+        for (int k = 1; k < 10; k++)
+            if (a[k]->N() != n) return -1L;
+        return recover(d, g, act == 1, *a[1], *a[2], *a[3], *a[4], *a[5], *a[6], *a[7], *a[8], *a[9], *a[10]);
     }
 };
 
 }  // namespace
 
-static void Load_Init() { Global.Add("pressureRecoveryFit", "(", new OneOperatorCode<PressureRecoveryFit>()); }
+static void Load_Init() {
+    Global.Add("pressureRecoveryFit", "(", new OneOperatorCode<PressureRecoveryFit>());
+    Global.Add("pressureRecoveryFitWith", "(", new OneOperatorCode<PressureRecoveryFitWith>());
+}
 
 LOADFUNC(Load_Init)
