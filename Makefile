@@ -237,7 +237,7 @@ scenes-study: setup
 # settings that suit 3D (gamma0, stabilization, contact points, cut geometry, grading passes;
 # results/hertz_spheres_settings.csv), the recovery's options on the shipped run's points
 # (results/hertz_spheres_recovery.csv), then the scene as shipped, coarser, in P1 and with the
-# former 3D defaults (results/hertz_spheres.csv, README table).
+# 3D defaults (results/hertz_spheres.csv, README table).
 .PHONY: hertz-3d-study
 hertz-3d-study: setup
 	$(VENV_PYTHON) -m driver study hertz-3d-settings hertz-3d-recovery hertz-3d

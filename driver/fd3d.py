@@ -15,8 +15,7 @@ Rules across keys (check below): the box is not empty; each body meets the box a
 they do not overlap at the start; a probe lies in its body; A, B and C lie inside
 body 1, A and B on one vertical line at different heights, C off it in x; each
 body gives lambda and mu or E and nu (not both); adapt.steps > 0 needs
-output.estimators; adapt.switch starts with r, holds a and no p. method.gamma0
-defaults to 0.2 for theta <= 0 and 1/200 for theta > 0.
+output.estimators; adapt.switch starts with r, holds a and no p.
 """
 
 import numpy as np
@@ -88,17 +87,13 @@ SCHEMA = {
                              doc="u1_y = 0 at C (rotation about z), inside the ball, off the line AB in x"),
     },
     "method": dict(two_body_method_schema(1), **{
-        "gamma0": Field("float", flag="gamma0", default=None, check=positive, unit="1",
-                        doc="Nitsche parameter, gamma = gamma0 h_K / muStar (1/stress with gamma_scaling none); "
-                            "default 0.2 for theta <= 0 (a 3D contact zone stays active), 1/200 for theta > 0 "
-                            "(coercivity) (docs/hertz-3d.md)"),
-        "geometry": Field("str", flag="geometry", default="curved", choices=("p1", "curved"),
+        "geometry": Field("str", flag="geometry", default="p1", choices=("p1", "curved"),
                           doc="cut geometry: curved integrates on the exact level set of the shapes "
-                              "(docs/curved-geometry.md: the load is the body force times the exact volume); "
-                              "p1 on the P1 interpolant of each level set (polyhedra, volume error O(h^2))"),
+                              "(docs/curved-geometry.md; the 3D default stays p1 until the 3D studies are "
+                              "rerun on it); p1 on the P1 interpolant of each level set (polyhedra, volume "
+                              "error O(h^2))"),
         "stabilization": Field("str", flag="stabilization", default="auto", choices=STABILIZATIONS,
-                               doc="auto: neighbour for every theta (coercivity on cut elements for theta > 0, "
-                                   "the multiplier's stress on badly cut elements for any)"),
+                               doc="auto: neighbour for theta > 0 (coercivity on cut elements), none otherwise"),
         "gamma_scaling": Field("str", flag="gamma_scaling", default="shear", choices=("shear", "none"),
                                doc="shear: gamma = gamma0 h_K / muStar, muStar = 2 mu1 mu2/(mu1 + mu2) (gamma0 "
                                    "dimensionless); none: gamma = gamma0 h_K (gamma0 in 1/stress)"),
@@ -140,15 +135,8 @@ def default_fix_points(bodies):
     return c + [c[0], c[1], c[2] + d], [c[0] + d, c[1], c[2]]
 
 
-# Nitsche's gamma0 when the scene gives none (the script's default, fd3d/params.idp)
-def default_gamma0(theta):
-    return 1.0 / 200.0 if theta > 0 else 0.2
-
-
 def check(scene, source):
     bodies = check_two_bodies(scene, source, 3, LEGACY_SHAPES, LEGACY_KEYS)
-    if scene["method"]["gamma0"] is None:
-        scene["method"]["gamma0"] = default_gamma0(scene["method"]["theta"])
     if not scene["adapt"]["switch"].startswith("r") or "a" not in scene["adapt"]["switch"] or "p" in scene["adapt"]["switch"]:
         raise SceneError(f"{source}: key 'adapt.switch': tetgreconstruction needs 'r' first, 'a', and no 'p'")
     rigid = scene["rigid"]

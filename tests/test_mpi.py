@@ -96,14 +96,16 @@ def test_a_dead_rank_stops_the_run_with_one_line(tmp_path):
 
 def test_block_low_rank_factors_give_the_full_rank_answer(module_scene):
     # solver.compression: MUMPS's BLR factors (MPI build: the driver starts mpirun on one
-    # process), refined to double precision like single-precision factors
-    full = module_scene(BALL, *SMALL, "solver.ranks=2")
-    blr = module_scene(BALL, *SMALL, "solver.compression=1e-4")
+    # process), refined to double precision like single-precision factors. MUMPS
+    # compresses only large fronts: at nx = 8 (6,126 DOFs) nothing is compressed, at
+    # nx = 14 (30,528 DOFs) 0.79 of the entries are kept.
+    larger = ("method.degree=2", "mesh.nx=14", "output.vtu=false", "output.estimators=false")
+    full = module_scene(BALL, *larger)
+    blr = module_scene(BALL, *larger, "solver.compression=1e-4")
     n = blr.results["newton"]
     assert n["processes"] == 1 and n["compression"] == 1e-4
-    # smaller factors, more refinement steps (measured: 0.78 of the entries, 31 steps against 0)
-    assert n["factor_entries_compressed"] < 0.9*n["factor_entries"]
+    assert n["factor_entries_compressed"] < 0.85*n["factor_entries"]
     assert n["refinement_steps"] > full.results["newton"]["refinement_steps"]
-    # measured: centre 1.1e-14, pressure 5.1e-13 of their largest value
+    # measured: centre 1.2e-14, pressure 1.6e-12 of their largest value
     assert relative(full.results["probes"]["centre"], blr.results["probes"]["centre"]) < 1e-13
-    assert relative(full.contact_samples().pressure, blr.contact_samples().pressure) < 5e-12
+    assert relative(full.contact_samples().pressure, blr.contact_samples().pressure) < 1e-11

@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from driver.errors import DriverError
-from driver.runner import REPO, run_freefem_tool
-from driver.studies.common import RESULTS_DIR, markdown_table, progress, run_point
+from ..errors import DriverError
+from ..runner import REPO, run_freefem_tool
+from .common import RESULTS_DIR, markdown_table, progress, run_point
 
 SPHERES = REPO / "cases" / "hertz_spheres.toml"
 # the scene's data (cases/hertz_spheres.toml states them)
@@ -36,9 +36,10 @@ SECTORS = 16           # angular sectors of the contact radius
 # What P1 needs: its multiplier is a stress of piecewise constant gradients, so it
 # takes a finer mesh than P2 for the same zone (the P1 rows of the table).
 P1_MESH = ["method.degree=1", "mesh.grade_h=0.004"]
-# The 3D defaults before this study (gamma0 = 1/200, no stabilization for theta = -1, the
-# P1 cut geometry, one grading pass: the state issue 43 measured) on the scene's mesh.
-BEFORE = ["method.gamma0=0.005", "method.stabilization='none'", "method.geometry='p1'", "mesh.grade_passes=1"]
+# The 3D defaults (gamma0 = 1/200, no stabilization for theta = -1, the P1 cut geometry,
+# one grading pass) on the scene's mesh: what a scene without the study's settings gets.
+THREE_D_DEFAULTS = ["method.gamma0=0.005", "method.stabilization='none'", "method.geometry='p1'",
+                    "mesh.grade_passes=1"]
 
 
 def hertz_solution():
@@ -132,7 +133,7 @@ def run_row(label, overrides):
     row, results, folder = run_point(SPHERES, overrides)
     if results is None:
         raise DriverError(f"hertz spheres ({label}) failed: {row['message']}")
-    return dict(run=label, overrides=" ".join(overrides), degree=results["degree"], gamma0=results["gamma0_scene"],
+    return dict(run=label, overrides=" ".join(overrides), degree=results["degree"], gamma0=results["gamma0"],
                 stabilization=results["cut"]["stabilization"], geometry=results["cut"]["geometry"],
                 contact_points=results["contact_points"], grade_h=results["grade_h"],
                 grade_passes=results["grade_passes"], **hertz_row(results, folder)), folder
@@ -154,13 +155,13 @@ TABLE_RUNS = [
     ("P2, grade_h 0.02 and one estimator-driven step", ["mesh.grade_h=0.02", "adapt.steps=1"]),
     ("P1, grade_h 0.004", P1_MESH),
     ("P1, grade_h 0.003", ["method.degree=1", "mesh.grade_h=0.003"]),
-    ("P2, the former 3D defaults", BEFORE),
+    ("P2, the 3D defaults", THREE_D_DEFAULTS),
 ]
 
 
 def table():
     """The scene as shipped (P2) and its neighbours in cost, P1 at the mesh it needs, and the
-    former 3D defaults: results/hertz_spheres.csv."""
+    3D defaults: results/hertz_spheres.csv."""
     frame = run_rows(TABLE_RUNS, "hertz spheres")
     RESULTS_DIR.mkdir(exist_ok=True)
     frame.to_csv(RESULTS_DIR / "hertz_spheres.csv", index=False)
