@@ -240,7 +240,7 @@ scenes-study: setup
 # 3D defaults (results/hertz_spheres.csv, README table).
 .PHONY: hertz-3d-study
 hertz-3d-study: setup
-	$(VENV_PYTHON) -m driver study hertz-3d-settings hertz-3d-recovery hertz-3d
+	$(VENV_PYTHON) -m driver study hertz-3d-settings hertz-3d-coarse hertz-3d-recovery hertz-3d
 	$(VENV_PYTHON) -m driver readme
 
 # The curved cut geometry against the P1 one (docs/curved-geometry.md): cut-cell

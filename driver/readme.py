@@ -510,6 +510,7 @@ TABLES = {
     "hertz_spheres": functools.partial(hertz_spheres_table, "hertz_spheres.csv", "hertz_table"),
     "hertz_spheres_settings": functools.partial(hertz_spheres_table, "hertz_spheres_settings.csv", "settings_table"),
     "hertz_spheres_recovery": functools.partial(hertz_spheres_table, "hertz_spheres_recovery.csv", "recovery_table"),
+    "hertz_spheres_coarse": functools.partial(hertz_spheres_table, "hertz_spheres_coarse.csv", "coarse_table"),
     "mutation": mutation,
     "mutation_totals": mutation_totals,
     "scenes": scenes_table,

@@ -15,7 +15,6 @@ import pytest
 from tests.conftest import REPO, run_cli
 
 
-@pytest.mark.freefem
 def driver_results(case, out, *settings):
     """python -m driver run CASE --out OUT --set SETTING ...: its results.json (the test fails
     with the driver's message otherwise)."""
@@ -24,6 +23,7 @@ def driver_results(case, out, *settings):
     return json.loads((Path(out) / "results.json").read_text())
 
 
+@pytest.mark.freefem
 def test_the_api_takes_a_dict_and_gives_dataframes_and_meshes(tmp_path):
     import driver as fdcontact     # the checkout's name for the package fdcontact
 

@@ -34,6 +34,7 @@ REGISTRY = {
     "hertz-3d": ("hertz3d", "table"),
     "hertz-3d-settings": ("hertz3d", "settings"),
     "hertz-3d-recovery": ("hertz3d", "recovery"),
+    "hertz-3d-coarse": ("hertz3d", "coarse"),
     "curved-geometry": ("curved", "geometry_check"),
     "curved-convergence": ("curved", "convergence"),
     "curved-smooth": ("curved", "smooth_problems"),

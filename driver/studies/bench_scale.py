@@ -31,7 +31,7 @@ from .bench import (load_average, machine, save_results, stamped, timed_run, use
                                   versions_to_time)
 from .common import markdown_table, progress
 
-SCALE_BASELINE = "d58614e"   # the version issue 44's targets are set against
+SCALE_BASELINE = "d58614e"   # the version the large-run targets are set against
 LARGE_REPEATS = int(os.environ.get("BENCH_SCALE_REPEATS", "3"))   # runs of minutes
 SMALL_REPEATS = 5                                                  # runs of seconds
 LARGE_NX = int(os.environ.get("BENCH_SCALE_LARGE_NX", "41"))
@@ -39,7 +39,7 @@ BALL_LABEL = "3D ball on slab, P2, nx = 30"
 SPHERE_LABEL = "3D sphere on sphere, P2, grade_h = 0.01"
 DISK_LABEL = "2D default scene (disk on slab), FreeFEM run"
 MAKE_CASE_LABEL = "2D default scene, the driver's run (make case)"
-# The sphere on sphere of issue 43's Hertz runs: F = 1e-4 on body 1 (f = F / volume),
+# The sphere on sphere of the Hertz runs: F = 1e-4 on body 1 (f = F / volume),
 # pinned on its axis, P2 graded to 0.01 within 0.04 of the contact point: 122,562 DOFs.
 SPHERE_SET = ("method.degree=2 mesh.grade_h=0.01 mesh.grade_radius=0.04 mesh.grade_point=[0,0,0] "
               "body1.body_force=[0,0,-0.0015278874536821952] rigid.fix_xy_points=[0,0,0.1,0,0,0.4] "
@@ -53,7 +53,7 @@ CASES = {
     DISK_LABEL: ("direct", ["freefem/fd_contact_2d.edp"], SMALL_REPEATS),
     MAKE_CASE_LABEL: ("driver", ["cases/disk_on_slab.toml"], SMALL_REPEATS),
 }
-# issue 44: at most these ratios to d58614e (wall time, peak memory)
+# the targets: at most these ratios to d58614e (wall time, peak memory)
 TARGETS = {BALL_LABEL: (0.25, 0.5), SPHERE_LABEL: (0.35, 0.5), DISK_LABEL: (1.05, None), MAKE_CASE_LABEL: (1.05, None)}
 
 
@@ -294,7 +294,7 @@ def large_run():
 
 
 def bench_scale():
-    """make bench: issue 44's runs: against d58614e, on several processes, the largest,
+    """make bench: the large 3D runs: against d58614e, on several processes, the largest,
     and the scaling model."""
     runs = save_results(bench_scale_runs=version_runs())
     summary = save_results(bench_scale=version_summary(runs))
