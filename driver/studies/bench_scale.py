@@ -18,6 +18,7 @@ import json
 import math
 import os
 import shutil
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -80,11 +81,21 @@ def relative(a, b):
     return float(np.abs(a - b).max() / np.abs(a).max())
 
 
+def build_plugins(tree):
+    """The FreeFEM plugins of a checked-out version, built by its own Makefile's rule."""
+    plugins = [f"freefem/plugins/{source.stem}.so" for source in sorted((tree / "freefem" / "plugins").glob("*.cpp"))]
+    proc = subprocess.run(["make", "-s", *plugins], cwd=tree, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise DriverError(f"bench-scale: cannot build the plugins of {SCALE_BASELINE}: "
+                          f"{(proc.stdout + proc.stderr).strip()[-300:]}")
+
+
 def version_runs():
     """Every case by both versions, in turn within each repeat."""
     rows = []
     total = sum(2 * repeats for _, _, repeats in CASES.values())
     with versions_to_time("bench-scale-", baseline=SCALE_BASELINE) as (tmp, trees):
+        build_plugins(trees["baseline"])
         reference = {}
         for repeat in range(max(repeats for _, _, repeats in CASES.values())):
             for case, (kind, args, repeats) in CASES.items():
