@@ -61,7 +61,7 @@ def add_inside_stress(path):
     cells = np.vstack([block.data for block in mesh.cells if block.type == kind])
     mesh.point_data["von_mises_inside"] = inside_extension(cells, vm, phi, rings=None)
     tmp = Path(path).with_name(f".{Path(path).name}.tmp.vtu")
-    meshio.vtu.write(tmp, mesh, binary=False)
+    meshio.vtu.write(tmp, mesh, binary=True, compression=None)   # raw base64: 40 times faster than ASCII
     os.replace(tmp, path)
 
 
