@@ -198,6 +198,18 @@ def stamped_bench_table(name):
     return markdown_table(getattr(bench, STAMPED_BENCH_TABLES[name])(t), digits=3) + machine_stamp(t)
 
 
+def bench_scale_table(name, table_function):
+    """A table of the bench-scale study (driver/studies/bench_scale.py), stamped with its machine."""
+    from .studies import bench_scale
+
+    t = pd.read_csv(RESULTS / f"{name}.csv")
+    return markdown_table(getattr(bench_scale, table_function)(t), digits=3) + machine_stamp(t)
+
+
+def bench_scale_model():
+    return markdown_table(pd.read_csv(RESULTS / "bench_scale_model.csv"), digits=3)
+
+
 def bench_solver_budget():
     t = pd.read_csv(RESULTS / "bench_solver_budget.csv")
     return markdown_table(t[["case", "factor_operations", "factor_entries", "sqrt_operations_per_entry",
@@ -527,6 +539,11 @@ TABLES = {
     "bench_error_tool": bench_error_tool,
     "bench_mumps": bench_mumps,
     "bench_first_active_set": bench_first_active_set,
+    "bench_scale": functools.partial(bench_scale_table, "bench_scale", "scale_table"),
+    "bench_scale_targets": functools.partial(bench_scale_table, "bench_scale_targets", "scale_targets_table"),
+    "bench_scale_mpi": functools.partial(bench_scale_table, "bench_scale_mpi", "scale_mpi_table"),
+    "bench_scale_large": functools.partial(bench_scale_table, "bench_scale_large", "scale_large_table"),
+    "bench_scale_model": bench_scale_model,
     "fd_aposteriori": fd_aposteriori,
     "fd2d_theta1_stabilization": fd2d_theta1_stabilization,
     "fd2d_crosscheck": fd2d_crosscheck,

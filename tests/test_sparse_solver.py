@@ -19,15 +19,20 @@ def relative(a, b):
     a, b = np.asarray(a, float), np.asarray(b, float)
     return float(np.abs(a - b).max() / np.abs(a).max())
 
-PLUGIN_CHECK = r"""
-load "freefem/plugins/contact_mumps"
-include "freefem/lib/core/sparse_solver.idp"
+
+# A P2 convection-diffusion system on the unit square (non-symmetric), for the checks below.
+TEST_SYSTEM = r"""
 mesh Th = square(30, 30);
 fespace Vh(Th, P2);
 varf a(u, v) = int2d(Th)(dx(u)*dx(v) + dy(u)*dy(v) + 0.3*dx(u)*v) + on(1, 2, 3, 4, u = 0);
 varf l(u, v) = int2d(Th)(v);
 matrix A = a(Vh, Vh);
-real[int] b = l(0, Vh), x(b.n), y(b.n), s(13);
+"""
+
+PLUGIN_CHECK = r"""
+load "freefem/plugins/contact_mumps"
+include "freefem/lib/core/sparse_solver.idp"
+""" + TEST_SYSTEM + r"""real[int] b = l(0, Vh), x(b.n), y(b.n), s(13);
 int info = contactMumpsFactor(A, 1);
 info = contactMumpsSolve(x, b);
 set(A, solver = sparsesolver);
@@ -260,12 +265,7 @@ def test_a_thread_count_out_of_range_is_refused(tmp_path):
 PRECISION_CHECK = r"""
 include "freefem/lib/core/args.idp"
 include "freefem/lib/core/sparse_solver.idp"
-mesh Th = square(30, 30);
-fespace Vh(Th, P2);
-varf a(u, v) = int2d(Th)(dx(u)*dx(v) + dy(u)*dy(v) + 0.3*dx(u)*v) + on(1, 2, 3, 4, u = 0);
-varf l(u, v) = int2d(Th)(v);
-matrix A = a(Vh, Vh);
-real[int] b = l(0, Vh), x(b.n), y(b.n), s(1);
+""" + TEST_SYSTEM + r"""real[int] b = l(0, Vh), x(b.n), y(b.n), s(1);
 set(A, solver = sparsesolver);
 y = A^-1*b;
 requireThat(contactMumpsPrecision(1) == 0, "precision");
