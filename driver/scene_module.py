@@ -424,9 +424,10 @@ def summary_head(results):
     contact = results["contact"]
     lines = [contact_headline(contact)]
     if contact.get("active_extent") and not contact.get("zone_resolved", 1):
+        levers = "mesh.nx, mesh.grade_h, adapt.steps" if results.get("dim") == 3 else "mesh.nx, adapt.steps"
         lines.append(f"WARNING: the contact zone is not resolved: its half-width spans "
                      f"{contact['zone_elements']:.2g} elements, the recovered pressure needs "
-                     f"{contact['zone_elements_needed']:g} (refine near the contact: mesh.nx, adapt.steps); "
+                     f"{contact['zone_elements_needed']:g} (refine near the contact: {levers}); "
                      f"forces and displacements are not affected")
     return lines
 
