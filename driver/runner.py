@@ -27,7 +27,6 @@ import time
 from pathlib import Path
 
 from .errors import DriverError, FreeFemError, NewtonError, SceneError
-from .paraview import paraview_files
 from .paths import FREEFEM_DIR, IN_CHECKOUT, REPO
 from .plugins import ensure_plugins
 from .resources import available_memory_mb, check_fits
@@ -85,13 +84,34 @@ def git_commit():
     return head.stdout.strip() + ("-dirty" if dirty else "")
 
 
-def provenance(command):
-    """What made a run (results.json "provenance")."""
+def provenance(command, commit):
+    """What made a run (results.json "provenance"); commit: git_commit()'s answer."""
     from . import __version__
 
-    return {"package": "fdcontact", "version": __version__, "git_commit": git_commit(), **installed_versions(),
+    return {"package": "fdcontact", "version": __version__, "git_commit": commit, **installed_versions(),
             "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "host": socket.gethostname(), "command": shlex.join(command)}
+
+
+class AfterRunPrefetch(threading.Thread):
+    """What a run needs once FreeFEM has finished, fetched while it runs on another core:
+    the provenance's git and package queries (subprocesses) and the ParaView step's
+    imports (numpy, meshio), tens of milliseconds each that a short run would otherwise
+    wait for. Failures are left for the main thread to meet again and report."""
+
+    def __init__(self):
+        super().__init__(daemon=True)
+        self.commit = None
+        self.start()
+
+    def run(self):
+        try:
+            self.commit = git_commit()
+            installed_versions()
+            import meshio  # noqa: F401  (paraview.add_inside_stress)
+            from . import paraview  # noqa: F401
+        except Exception:
+            pass
 
 
 def freefem_binary():
@@ -404,6 +424,7 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
         stdbuf = shutil.which("stdbuf")
         launch = [stdbuf, "-oL", "-eL"] + command if stdbuf else command
         (staging / "command.txt").write_text(rerun_text(command))
+        prefetch = AfterRunPrefetch()
         start = time.perf_counter()
         with open(staging / "freefem.log", "w") as log:
             proc = subprocess.Popen(launch, cwd=REPO, env=freefem_env(under_mpirun), stdout=subprocess.PIPE,
@@ -420,11 +441,13 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
         wall = time.perf_counter() - start
         guard.check(scene["scene"]["name"], proc.returncode)
         results = check_outcome(proc.returncode, staging, scene["scene"]["name"], ranks)
+        prefetch.join()
+        from .paraview import paraview_files
         paraview_files(staging, results)
         results["wall_s"] = wall
         results["peak_rss_mb"] = guard.peak_mb
         published = [arg.replace(str(staging), str(final)) for arg in command]   # the run.edp, -outdir
-        results["provenance"] = provenance(published)
+        results["provenance"] = provenance(published, prefetch.commit)
         if scene["scene"].get("units"):
             results["units"] = scene["scene"]["units"]
         (staging / "results.json").write_text(json.dumps(results, indent=1))

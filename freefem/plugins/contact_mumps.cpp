@@ -81,6 +81,9 @@
 //       low-rank (1) or not (0), the entries of the factors with their low-rank
 //       blocks compressed (INFOG(35)), whether they are in files (1) or in memory
 //       (0), and the order of the largest front (INFOG(11)).
+//   int absMatrixProduct(matrix M, real[int] x, real[int] y)
+//       y (resized to M.n) = |M| x, the product with M's absolute values, without
+//       assembling them (core/gates.idp's round-off bounds); -1 when x.n != M.m.
 //   int contactMumpsRelease()
 //       frees the instance (the next factorization analyses again).
 //   int contactMumpsProcessMemory(real[int] mb)
@@ -1113,6 +1116,24 @@ long contactMumpsStats(KN<double> *const &s) {
     return 0;
 }
 
+// y = |M| x, the product with the matrix of M's absolute values (an entry of a half
+// stored symmetric matrix counted for both of its places): the round-off bounds of
+// core/gates.idp, without assembling |M|. Returns 0, or -1 when the sizes disagree.
+long absMatrixProduct(Matrice_Creuse<double> *const &M, KN<double> *const &x, KN<double> *const &y) {
+    HashMatrix<int, double> *hm = M ? M->pHM() : 0;
+    if (!hm) { y->resize(0); return x->N() == 0 ? 0 : -1; }
+    if (x->N() != hm->m) return -1;
+    y->resize(hm->n);
+    *y = 0.;
+    for (size_t k = 0; k < hm->nnz; ++k) {
+        const int i = hm->i[k], j = hm->j[k];
+        const double a = std::fabs(hm->aij[k]);
+        (*y)[i] += a * (*x)[j];
+        if (hm->half && i != j) (*y)[j] += a * (*x)[i];
+    }
+    return 0;
+}
+
 long contactMumpsRelease() {
     instance().release();
     return 0;
@@ -1163,6 +1184,8 @@ static void Load_Init() {
     Global.Add("contactMumpsThreads", "(", new OneOperator1_<long, long>(contactMumpsThreads));
     Global.Add("contactMumpsStats", "(", new OneOperator1_<long, KN<double> *>(contactMumpsStats));
     Global.Add("contactMumpsRelease", "(", new OneOperator0<long>(contactMumpsRelease));
+    Global.Add("absMatrixProduct", "(",
+               new OneOperator3_<long, Matrice_Creuse<double> *, KN<double> *, KN<double> *>(absMatrixProduct));
     Global.Add("contactMumpsProcessMemory", "(", new OneOperator1_<long, KN<double> *>(contactMumpsProcessMemory));
 }
 
