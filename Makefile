@@ -31,7 +31,7 @@ export FF_LOADPATH := /usr/lib/freefem++
 PLUGINS := $(patsubst %.cpp,%.so,$(wildcard freefem/plugins/*.cpp))
 # what each plugin links besides FreeFEM: freefem/plugins/link_flags.txt (driver/plugins.py,
 # which builds them for an installed package, reads the same file)
-PLUGIN_FLAGS = $(shell sed -n 's/^$(1):\(.*\)/\1/p' freefem/plugins/link_flags.txt)
+PLUGIN_FLAGS = $(shell sed -n 's|^$(1):\(.*\)|\1|p' freefem/plugins/link_flags.txt)
 MPI_PLUGINS := freefem/plugins/mpi/contact_mumps.so   # for FreeFem++-mpi (below)
 
 setup: setup-system setup-python $(PLUGINS) $(MPI_PLUGINS)
@@ -50,12 +50,12 @@ freefem/plugins/%.so: freefem/plugins/%.cpp $(PLUGIN_HEADERS) | setup-system
 # source against Debian's parallel MUMPS and Open MPI (ff-c++ -mpi compiles with
 # mpicxx). FreeFem++-mpi looks for plugins in each load path's mpi/ folder, so the
 # scripts' load "contact_mumps" finds this one there and the sequential one otherwise
-# (freefem++.pref puts freefem/plugins on the load path).
-LIBS_MPI_contact_mumps := -ldmumps -lsmumps -lmumps_common -l:liblapack.so.3
+# (freefem++.pref puts freefem/plugins on the load path). Its link flags: the line
+# mpi/contact_mumps of freefem/plugins/link_flags.txt.
 freefem/plugins/mpi/%.so: freefem/plugins/%.cpp $(PLUGIN_HEADERS) | setup-system
 	@echo "building $@"
 	@mkdir -p $(@D) && tmp=$$(mktemp -d) && cp $< $$tmp/ \
-	  && (cd $$tmp && ff-c++ -mpi -DCONTACT_MUMPS_MPI $*.cpp -I$(CURDIR)/freefem/plugins $(LIBS_MPI_$*) > build.log 2>&1) \
+	  && (cd $$tmp && ff-c++ -mpi -DCONTACT_MUMPS_MPI $*.cpp -I$(CURDIR)/freefem/plugins $(call PLUGIN_FLAGS,mpi/$*) > build.log 2>&1) \
 	  && mv $$tmp/$*.so $@ && rm -rf $$tmp \
 	  || { cat $$tmp/build.log; rm -rf $$tmp; echo "ERROR: could not build $@"; exit 1; }
 
