@@ -11,19 +11,17 @@
 // distance, then by point number: a fit's sums do not depend on the cells.
 //
 // Script interface:
-//   int pressureRecoveryFit(int dim, real[int] qx, real[int] qy, real[int] qz,
-//                           real[int] nqx, real[int] nqy, real[int] nqz, real[int] qw,
-//                           real[int] pRaw, real[int] radius, real[int] pRec)
-//   pRec (resized to the number of points) = the recovered pressure at each point;
-//   dim 2 reads qz and nqz but takes the tangent (-ny, nx). Returns the number of
-//   points fitted, -1 when the arrays' sizes differ or a radius is not positive.
-//   int pressureRecoveryFitWith(real[int] options, qx, qy, qz, nqx, nqy, nqz, qw,
-//                               pRaw, radius, pRec)
-//   the same with options = [dim, degree, activeOnly]: a fit of the given degree (1:
-//   the plane above; 2: adds the squares and the product of the tangential
-//   coordinates), and with activeOnly = 1 only at the points whose raw pressure is
-//   positive (the active points: the law's multiplier is positive exactly there), the
-//   others recovering 0. Returns as above (-1 also for options not of that form).
+//   int pressureRecoveryFitWith(real[int] options, real[int] qx, real[int] qy,
+//                               real[int] qz, real[int] nqx, real[int] nqy, real[int] nqz,
+//                               real[int] qw, real[int] pRaw, real[int] radius,
+//                               real[int] pRec)
+//   pRec (resized to the number of points) = the recovered pressure at each point,
+//   options = [dim, degree, activeOnly]: dim 2 reads qz and nqz but takes the tangent
+//   (-ny, nx); degree 1 fits the plane, 2 adds the squares and the product of the
+//   tangential coordinates; activeOnly = 1 fits only at the points whose raw pressure
+//   is positive (the active points: the law's multiplier is positive exactly there),
+//   the others recovering 0. Returns the number of points fitted, -1 when the arrays'
+//   sizes differ, a radius is not positive or the options are not of that form.
 #include "ff++.hpp"
 #include "script_powers.hpp"   // sq, cube: x^2, x^3 as the script computes them
 
@@ -232,33 +230,6 @@ long recover(int dim, int degree, bool activeOnly, const KN_<double> &qx, const 
     return fitted;
 }
 
-class PressureRecoveryFit : public E_F0mps {
-  public:
-    typedef long Result;
-    Expression dim, arrays[10];
-
-    explicit PressureRecoveryFit(const basicAC_F0 &args) {
-        args.SetNameParam();
-        dim = to<long>(args[0]);
-        for (int a = 0; a < 10; a++) arrays[a] = to<KN<double> *>(args[1 + a]);
-    }
-    static ArrayOfaType typeargs() {
-        aType v = atype<KN<double> *>();
-        return ArrayOfaType(atype<long>(), v, v, v, v, v, v, v, v, v, v);
-    }
-    static E_F0 *f(const basicAC_F0 &args) { return new PressureRecoveryFit(args); }
-
-    AnyType operator()(Stack stack) const {
-        long d = GetAny<long>((*dim)(stack));
-        KN<double> *a[10];
-        for (int k = 0; k < 10; k++) a[k] = GetAny<KN<double> *>((*arrays[k])(stack));
-        long n = a[0]->N();
-        for (int k = 0; k < 9; k++)
-            if (a[k]->N() != n) return -1L;
-        return recover(d, 1, false, *a[0], *a[1], *a[2], *a[3], *a[4], *a[5], *a[6], *a[7], *a[8], *a[9]);
-    }
-};
-
 // pressureRecoveryFitWith(options, qx, qy, qz, nqx, nqy, nqz, qw, pRaw, radius, pRec),
 // options = [dim, degree, activeOnly]
 class PressureRecoveryFitWith : public E_F0mps {
@@ -293,7 +264,6 @@ class PressureRecoveryFitWith : public E_F0mps {
 }  // namespace
 
 static void Load_Init() {
-    Global.Add("pressureRecoveryFit", "(", new OneOperatorCode<PressureRecoveryFit>());
     Global.Add("pressureRecoveryFitWith", "(", new OneOperatorCode<PressureRecoveryFitWith>());
 }
 
