@@ -185,16 +185,19 @@ def test_out_of_range_solver_options_are_refused(tmp_path):
     assert proc.returncode == 2 and "option -reuse_analysis: 2 must be 0 or 1" in proc.stdout + proc.stderr
 
 
+def small_ball_results(out, flag, value):
+    """results.json of the ball on slab, P2, nx = 6, run directly with one solver flag; the
+    run's folder holds nothing else (MUMPS's factor files, prefix mumps_factors, are gone
+    with the solve)."""
+    proc = run_freefem("fd_contact_3d.edp", "-Ddegree=2", "-nx", 6, "-estimators", 0, "-vtu", 0, "-csv", 0,
+                       flag, value, "-outdir", out)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert sorted(p.name for p in out.iterdir()) == ["results.json"]
+    return json.loads((out / "results.json").read_text())
+
+
 def test_out_of_core_factors_give_the_answer_and_leave_no_file(tmp_path):
-    runs = {}
-    for flag in (0, 1):
-        out = tmp_path / f"ooc{flag}"
-        proc = run_freefem("fd_contact_3d.edp", "-Ddegree=2", "-nx", 6, "-estimators", 0, "-vtu", 0, "-csv", 0,
-                           "-out_of_core", flag, "-outdir", out)
-        assert proc.returncode == 0, proc.stderr[-2000:]
-        runs[flag] = json.loads((out / "results.json").read_text())
-        # MUMPS's factor files (prefix mumps_factors) are gone with the solve
-        assert sorted(p.name for p in out.iterdir()) == ["results.json"]
+    runs = {flag: small_ball_results(tmp_path / f"ooc{flag}", "-out_of_core", flag) for flag in (0, 1)}
     centre = runs[0]["probes"]["centre"][2]
     assert runs[1]["newton"]["factorizations"] == runs[0]["newton"]["factorizations"]
     assert abs(runs[1]["probes"]["centre"][2] - centre) <= 1e-12*abs(centre)
@@ -327,14 +330,8 @@ def test_single_precision_run_gives_the_double_precision_answer(tmp_path):
 
 
 def test_factors_go_to_files_above_the_size_given(tmp_path):
-    runs = {}
-    for mb in (0, 1):   # 0: in memory; 1: the factors (about 10 MB) in files of the run's folder
-        out = tmp_path / f"mb{mb}"
-        proc = run_freefem("fd_contact_3d.edp", "-Ddegree=2", "-nx", 6, "-estimators", 0, "-vtu", 0, "-csv", 0,
-                           "-out_of_core_mb", mb, "-outdir", out)
-        assert proc.returncode == 0, proc.stderr[-2000:]
-        runs[mb] = json.loads((out / "results.json").read_text())
-        assert sorted(p.name for p in out.iterdir()) == ["results.json"]
+    # 0: in memory; 1: the factors (about 10 MB) in files of the run's folder
+    runs = {mb: small_ball_results(tmp_path / f"mb{mb}", "-out_of_core_mb", mb) for mb in (0, 1)}
     assert runs[0]["newton"]["factors_out_of_core"] == 0 and runs[1]["newton"]["factors_out_of_core"] == 1
     centre = runs[0]["probes"]["centre"][2]
     assert abs(runs[1]["probes"]["centre"][2] - centre) <= 1e-12*abs(centre)
