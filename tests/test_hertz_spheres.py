@@ -30,6 +30,8 @@ def test_the_contact_zone_matches_hertz(coarser):
     assert row["recovered_l2"] < 0.08
     assert row["raw_l2"] < 0.15
     assert 0.98 < row["active_area_ratio"] < 1.04
+    # the Newton start follows the graded mesh's size at the contact (measured: 5 steps)
+    assert row["newton_iterations"] <= 6
     # the recovery does not make the pressure worse than the raw multiplier
     assert row["recovered_l2"] < 0.6 * row["raw_l2"]
 
@@ -40,6 +42,10 @@ def test_the_recovered_pressure_carries_the_contact_force(coarser):
     assert 0.985 < row["recovered_integral_ratio"] <= 1.0
     assert row["recovered_outside"] == 0.0      # nothing past 1.1 a
     assert run.results["pressure_recovery"]["active_only"] == 1
+    # the raw multiplier integrated against body 2's normal is the contact force on body 1
+    points = run.contact_samples()
+    force_z = (points.weight * points.pressure * points.normal_z).sum()
+    assert force_z == pytest.approx(run.results["contact"]["force_on_body1"][2], rel=1e-9)
 
 
 def test_the_load_is_the_curved_volume_s(coarser):
