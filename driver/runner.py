@@ -430,7 +430,7 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
             proc = subprocess.Popen(launch, cwd=REPO, env=freefem_env(under_mpirun), stdout=subprocess.PIPE,
                                     stderr=subprocess.STDOUT, text=True, errors="replace", pass_fds=(lock,),
                                     preexec_fn=mpirun_dies_with_parent if under_mpirun else die_with_parent)
-            guard = Guard(proc, limits)
+            guard = Guard(proc, limits, tree=under_mpirun)
             for line in proc.stdout:
                 log.write(line)
                 log.flush()   # the log of a running job can be followed (tail -f)
@@ -507,10 +507,12 @@ def run_limits(scene):
 
 class Guard:
     """Watches a FreeFEM process: its peak resident memory (VmHWM), and stops it (SIGKILL)
-    beyond the time or memory limit; check() turns such a stop into one SceneError."""
+    beyond the time or memory limit; check() turns such a stop into one SceneError.
+    tree: the process is mpirun, and the run is every process below it (found in /proc
+    at each look); otherwise the process alone is read."""
 
-    def __init__(self, proc, limits):
-        self.proc, self.limits = proc, limits
+    def __init__(self, proc, limits, tree=False):
+        self.proc, self.limits, self.tree = proc, limits, tree
         self.peak_kb = 0
         self.reason = None
         self.start = time.monotonic()
@@ -525,7 +527,7 @@ class Guard:
     def watch(self):
         peaks = {}   # pid -> VmHWM (kB) of FreeFEM and, under mpirun, every process below it
         while not self.done.wait(0.05):
-            pids = process_tree(self.proc.pid)
+            pids = process_tree(self.proc.pid) if self.tree else [self.proc.pid]
             if self.proc.pid not in pids:
                 return
             for pid in pids:
