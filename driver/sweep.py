@@ -53,7 +53,8 @@ SWEEPS_DIR = REPO / "runs" / "sweeps"
 RETRY_ON_RESUME = {"KilledWorker", "TaskError"}     # infrastructure failures, not results
 DEFAULT_MAX_RETRIES = 2        # a point may take its worker down this many times, then KilledWorker
 # Sources whose change changes a run's result: their digest is part of every key.
-CODE_MODULES = ("runner", "scene", "schema", "materials", "fd2d", "fd3d", "foundation", "studies.common")
+CODE_MODULES = ("runner", "scene", "schema", "header", "materials", "fd2d", "fd3d", "foundation", "paraview",
+                "plugins", "studies.common")
 
 SWEEP_KEYS = {"name", "scene", "set", "description"}
 DEBUG_KEYS = {"sleep_s", "crash_points"}
