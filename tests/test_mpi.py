@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import REPO
+from conftest import REPO, relative_max_error
 from driver.runner import process_tree
 
 pytestmark = pytest.mark.freefem      # every test here starts FreeFEM
@@ -23,9 +23,9 @@ BALL = "cases/ball_on_slab.toml"
 SMALL = ("method.degree=2", "mesh.nx=8", "output.vtu=false")   # 6,126 DOFs
 
 
-def relative(a, b):
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    return float(np.abs(a - b).max() / np.abs(a).max())
+def relative(reference, value):
+    """The largest difference from the reference, relative to its largest magnitude."""
+    return relative_max_error(np.asarray(value, float), np.asarray(reference, float))
 
 
 def test_two_processes_give_the_one_process_answer(module_scene):

@@ -10,14 +10,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import run_freefem
+from conftest import relative_max_error, run_freefem
 
 pytestmark = pytest.mark.freefem      # every test here starts FreeFEM (make test-fast leaves them out)
 
 
-def relative(a, b):
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    return float(np.abs(a - b).max() / np.abs(a).max())
+def relative(reference, value):
+    """The largest difference from the reference, relative to its largest magnitude."""
+    return relative_max_error(np.asarray(value, float), np.asarray(reference, float))
 
 
 # A P2 convection-diffusion system on the unit square (non-symmetric), for the checks below.
