@@ -91,3 +91,16 @@ def save_figure(fig, name, dpi=110, tight=True):
 def loglog_slope(x, y):
     x, y = np.log(np.asarray(x, float)), np.log(np.asarray(y, float))
     return float(np.polyfit(x, y, 1)[0])
+
+
+def hertz_radius_and_modulus(r1, r2, e, nu):
+    """Hertz's relative radius 1/R = 1/R1 + 1/R2 and contact modulus E* = E / (2 (1 - nu^2))
+    of two bodies of the same material."""
+    return 1 / (1 / r1 + 1 / r2), e / (2 * (1 - nu ** 2))
+
+
+def weighted_relative_l2(weight, value, exact):
+    """sqrt(sum w (value - exact)^2 / sum w exact^2): a pressure against a closed form at
+    quadrature points."""
+    weight, value, exact = (np.asarray(v, float) for v in (weight, value, exact))
+    return float(np.sqrt(np.sum(weight * (value - exact) ** 2) / np.sum(weight * exact ** 2)))

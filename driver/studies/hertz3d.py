@@ -23,7 +23,7 @@ import pandas as pd
 
 from ..errors import DriverError
 from ..runner import REPO, run_freefem_tool
-from .common import RESULTS_DIR, markdown_table, progress, run_point
+from .common import RESULTS_DIR, hertz_radius_and_modulus, markdown_table, progress, run_point, weighted_relative_l2
 
 SPHERES = REPO / "cases" / "hertz_spheres.toml"
 # the scene's data (cases/hertz_spheres.toml states them)
@@ -44,8 +44,7 @@ THREE_D_DEFAULTS = ["method.gamma0=0.005", "method.stabilization='none'", "metho
 
 def hertz_solution():
     """(a, p0) of Hertz's sphere on sphere."""
-    radius = 1 / (1 / R1 + 1 / R2)
-    e_star = E / (2 * (1 - NU ** 2))
+    radius, e_star = hertz_radius_and_modulus(R1, R2, E, NU)
     a = (3 * F * radius / (4 * e_star)) ** (1 / 3)
     return a, 3 * F / (2 * math.pi * a ** 2)
 
@@ -79,8 +78,7 @@ def profile_error(points, pressure):
     a, _ = hertz_solution()
     r = np.hypot(points.x, points.y).to_numpy()
     zone = r < a
-    w, exact = points.weight.to_numpy()[zone], hertz_pressure(r[zone])
-    return float(math.sqrt(np.sum(w * (np.asarray(pressure)[zone] - exact) ** 2) / np.sum(w * exact ** 2)))
+    return weighted_relative_l2(points.weight.to_numpy()[zone], np.asarray(pressure)[zone], hertz_pressure(r[zone]))
 
 
 def badly_cut_error(points, cut_below=0.05):

@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import DriverError
-from .common import RESULTS_DIR, progress, run_point
+from .common import RESULTS_DIR, hertz_radius_and_modulus, progress, run_point, weighted_relative_l2
 
 SCENES = ["cases/disk_on_slab.toml", "cases/disk_on_tilted_slab.toml", "cases/hertz_cylinders.toml",
           "cases/punch.toml", "cases/ellipse_on_arch.toml", "cases/ring_on_slab.toml", "cases/cam_on_slab.toml"]
@@ -19,8 +19,7 @@ HERTZ_P, HERTZ_R1, HERTZ_R2, HERTZ_E, HERTZ_NU = 0.001, 0.25, 0.75, 1.0, 0.3
 
 
 def hertz_solution():
-    radius = 1 / (1 / HERTZ_R1 + 1 / HERTZ_R2)
-    e_star = HERTZ_E / (2 * (1 - HERTZ_NU ** 2))
+    radius, e_star = hertz_radius_and_modulus(HERTZ_R1, HERTZ_R2, HERTZ_E, HERTZ_NU)
     a = math.sqrt(4 * HERTZ_P * radius / (math.pi * e_star))
     return a, 2 * HERTZ_P / (math.pi * a)
 
@@ -35,14 +34,11 @@ def hertz_row(results, folder):
     zone = s[(s.x.abs() < a) & (s.y < 0.05)]
     exact = p0 * np.sqrt(1 - zone.x ** 2 / a ** 2)
 
-    def profile(pressure):
-        return math.sqrt(np.sum(zone.weight * (pressure - exact) ** 2) / np.sum(zone.weight * exact ** 2))
-
     return dict(a_hertz=a, half_width=(x1 - x0) / 2, half_width_error=abs((x1 - x0) / 2 - a) / a,
                 force=results["contact"]["force_on_body1"][1], force_error=abs(results["contact"]["force_on_body1"][1]
                                                                             - HERTZ_P),
-                p0_hertz=p0, pressure_l2_error=profile(zone.pressure),
-                recovered_l2_error=profile(zone.pressure_recovered),
+                p0_hertz=p0, pressure_l2_error=weighted_relative_l2(zone.weight, zone.pressure, exact),
+                recovered_l2_error=weighted_relative_l2(zone.weight, zone.pressure_recovered, exact),
                 peak_recovered_error=results["contact"]["max_pressure_recovered"] / p0 - 1)
 
 
