@@ -1,0 +1,149 @@
+"""The FreeFEM code's layout rules (docs/design.md "How the FreeFEM code is laid out"),
+read from the sources: the contact law has one home, the 2D and 3D scripts run the
+same stages in the same order, no per-body name is declared by token pasting, and
+every module has an include guard. No FreeFEM run: these are facts about the text."""
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+FREEFEM = ROOT / "freefem"
+MODULES = sorted(FREEFEM.rglob("*.idp"))
+SOURCES = MODULES + sorted(FREEFEM.rglob("*.edp"))
+SCRIPTS_TWO_BODY = [FREEFEM / "fd_contact_2d.edp", FREEFEM / "fd_contact_3d.edp"]
+
+# The law's positive part [d]_+ divided by gamma, however it is spelled.
+POSITIVE_PART = re.compile(r"max\(\s*[^(),]+,\s*0\.?\s*\)\s*/\s*\(?\s*gam")
+# A declaration: a type, then its declarators up to the semicolon.
+DECLARATION = re.compile(
+    r"^\s*(?:real\[int\]|int\[int\]|real|int|matrix|string|mesh3?|fespace|Ph|Lh|Vh\w*)\s+([^;]*)", re.M)
+# A name made from a body-index macro parameter (cut#i#K, hold#b, ...).
+BODY_PASTED = re.compile(r"[A-Za-z_]\w*#(?:i|b)\b|\b(?:i|b)#[A-Za-z_]")
+
+
+def code(path):
+    """The source without its // comments and /* */ comments."""
+    text = path.read_text()
+    text = re.sub(r"/\*.*?\*/", " ", text, flags=re.S)
+    return re.sub(r"//[^\n]*", "", text)
+
+
+def declared_names(declarators):
+    """The names a declaration's comma-separated declarators introduce (top level only)."""
+    names, depth, current = [], 0, ""
+    for ch in declarators + ",":
+        if ch in "([{":
+            depth += 1
+        elif ch in ")]}":
+            depth -= 1
+        if ch == "," and depth == 0:
+            names.append(re.split(r"[=(\[\s]", current.strip(), maxsplit=1)[0])
+            current = ""
+        else:
+            current += ch
+    return [n for n in names if n]
+
+
+def test_the_positive_part_of_the_contact_law_has_one_home():
+    homes = sorted(str(p.relative_to(FREEFEM)) for p in SOURCES if POSITIVE_PART.search(code(p)))
+    assert homes == ["lib/core/contact_law.idp"]
+
+
+def stage_sequence(script):
+    """The stage macros the step loop expands, in order (one name per line, as written)."""
+    text = code(script)
+    loop = text[text.index("for (int step = 0;"):]
+    return re.findall(r"^\s*(fd(?:Stage\w+|SolutionFields|EstimatorsStage|StepRecord|AdaptStop|Results\w+|"
+                      r"AdaptBackground))\b", loop, re.M)
+
+
+def test_the_2d_and_3d_scripts_run_the_same_stages_in_the_same_order():
+    two, three = (stage_sequence(s) for s in SCRIPTS_TWO_BODY)
+    assert two[:3] == ["fdStageGeometry", "fdStageAssembly", "fdStageNewton"]
+    assert two == three
+
+
+def test_no_per_body_name_is_declared_by_token_pasting():
+    offenders = []
+    for path in SOURCES:
+        for match in DECLARATION.finditer(code(path)):
+            offenders += [f"{path.relative_to(FREEFEM)}: {name}" for name in declared_names(match.group(1))
+                          if BODY_PASTED.search(name)]
+    assert offenders == []
+
+
+def test_the_declaration_scan_sees_a_pasted_body_name():
+    """The scan above would catch a regression: a pasted declaration in its own grammar."""
+    sample = "real[int] cut#i#K = seg#i#K, cv#i#x(0);\nint nCurvedFallback#i = 0;\nreal[int] kept(3);\n"
+    found = [name for m in DECLARATION.finditer(sample) for name in declared_names(m.group(1))]
+    assert found == ["cut#i#K", "cv#i#x", "nCurvedFallback#i", "kept"]
+    assert [n for n in found if BODY_PASTED.search(n)] == ["cut#i#K", "cv#i#x", "nCurvedFallback#i"]
+
+
+def test_every_module_has_an_include_guard():
+    """Generated flag-rule lists (flag_rules.idp) are data, included by their params.idp alone."""
+    modules = [p for p in MODULES if p.name != "flag_rules.idp"]
+    unguarded = [str(p.relative_to(FREEFEM)) for p in modules
+                 if not re.match(r"\s*IFMACRO\(!\w+Included\)", code(p))]
+    assert len(modules) > 60 and unguarded == []
+
+
+# Which modules a module may include: core/ is shared, except the dimension's
+# elasticity and the 2D adaptation helper; the scene module and the flags are the
+# script's, never a module's.
+DIMENSIONAL_CORE = {"elasticity2d.idp": "core2d", "adapt2d.idp": "core2d", "elasticity3d.idp": "core3d"}
+MAY_INCLUDE = {"core": {"core"}, "core2d": {"core", "core2d"}, "core3d": {"core", "core3d"},
+               "fd2d": {"fd2d", "core", "core2d"}, "fd3d": {"fd3d", "core", "core3d"},
+               "foundation": {"foundation", "core", "core2d"}}
+SCRIPT_HOOKS = {"scene_default.idp", "params.idp", "params_two_body.idp", "flag_rules.idp"}
+LIBRARY = [p for p in MODULES if p.parent.parent == FREEFEM / "lib"]
+
+
+def family(path):
+    folder = path.parent.name
+    return DIMENSIONAL_CORE.get(path.name, folder) if folder == "core" else folder
+
+
+def definitions():
+    """Macro and function names -> the library modules defining them."""
+    found = {}
+    for path in LIBRARY:
+        text = code(path)
+        for name in re.findall(r"^\s*macro\s+(\w+)", text, re.M) + \
+                re.findall(r"^\s*func\s+[\w\[\]]+\s+(\w+)\s*\(", text, re.M):
+            found.setdefault(name, set()).add(path)
+    return found
+
+
+def missing_includes(path, defined, source=None):
+    """The modules whose macros or functions the module at path (its text: source, or
+    the file's) uses without including them. A name defined in the module's own
+    folder and in core/ is the folder's (2D and 3D twins); a name only other
+    dimensions define is a hook the script supplies."""
+    source = path.read_text() if source is None else source
+    text = re.sub(r"//[^\n]*", "", re.sub(r"/\*.*?\*/", " ", source, flags=re.S))
+    own = set(re.findall(r"^\s*macro\s+(\w+)", text, re.M))
+    included = {FREEFEM / m for m in re.findall(r'include\s+"freefem/([^"]+)"', source)}
+    needed = set()
+    for name in set(re.findall(r"\b[A-Za-z_]\w*\b", text)) - own:
+        homes = [q for q in defined.get(name, ()) if q != path and q.name not in SCRIPT_HOOKS
+                 and family(q) in MAY_INCLUDE[family(path)]]
+        nearest = [q for q in homes if family(q) != "core"] or homes
+        needed |= set(nearest)
+    return sorted(str(q.relative_to(FREEFEM)) for q in needed - included)
+
+
+def test_every_module_includes_what_it_uses():
+    defined = definitions()
+    gaps = {str(p.relative_to(FREEFEM)): missing_includes(p, defined)
+            for p in LIBRARY if p.name not in SCRIPT_HOOKS}
+    assert {k: v for k, v in gaps.items() if v} == {}
+
+
+def test_the_include_check_sees_a_missing_include():
+    """A 2D module calling the 2D spaces' fdBodyMesh without including them is reported,
+    and is not once it includes them."""
+    defined = definitions()
+    probe = FREEFEM / "lib" / "fd2d" / "probe.idp"   # a path for its folder; never written
+    text = "IFMACRO(!probeIncluded)\nmacro probeIncluded()1\n{}macro probe() fdBodyMesh(Th, inBody1, Th1) //\nENDIFMACRO\n"
+    assert missing_includes(probe, defined, text.format("")) == ["lib/fd2d/spaces.idp"]
+    assert missing_includes(probe, defined, text.format('include "freefem/lib/fd2d/spaces.idp"\n')) == []
