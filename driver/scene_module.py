@@ -480,7 +480,7 @@ def adaptation_lines(results, measure):
            "dof_budget": f"at its DOF budget (adapt.max_dofs = {adapt.get('max_dofs', 0):g}: the next mesh "
                          f"would pass it) after {adapt.get('steps_done', 0):g} of "
                          f"{adapt.get('steps_requested', 0):g} steps"}.get(adapt.get("stop"), "")
-    remesher = "tetgen" if results["dim"] == 3 else "adaptmesh"
+    remesher = adapt.get("remesher", "").split(":")[0]
     return [f"adaptation ({remesher}): {len(steps['dofs'])} solves, DOFs "
             f"{int(steps['dofs'][0])} -> {int(steps['dofs'][-1])}, eta {steps['eta'][0]:.4g} -> "
             f"{steps['eta'][-1]:.4g}, body 1 {measure} {steps['measure_body1'][0]:.6f} -> "

@@ -202,3 +202,49 @@ def test_an_adaptation_stopped_by_its_dof_budget_says_so(run_scene):
     assert "stopped at its DOF budget (adapt.max_dofs = 5000" in run.summary
     full = run_scene("cases/disk_on_slab.toml", "mesh.nx=20", "method.degree=1", "adapt.steps=1")
     assert full.results["adapt"]["stop"] == "steps" and "stopped after every step asked" in full.summary
+
+
+def flat_keys(tree, prefix=""):
+    """The dotted paths of a results.json tree's leaves (a list is a leaf)."""
+    keys = set()
+    for key, value in tree.items():
+        path = prefix + key
+        keys |= flat_keys(value, path + ".") if isinstance(value, dict) else {path}
+    return keys
+
+
+def documented_one_dimension_keys(heading):
+    """The keys docs/outputs.md lists in its table under `| only in 2D |` or `| only in 3D |`
+    (case_a/b/c stands for case_a, case_b and case_c, body1/2 for body1 and body2: each
+    alternative replaces as many last characters; an object covers its keys)."""
+    text = (REPO / "docs" / "outputs.md").read_text()
+    table = text[text.index(f"| only in {heading} |"):].split("\n\n")[0]
+    keys = set()
+    for row in table.splitlines()[2:]:
+        for key in __import__("re").findall(r"`([^`]+)`", row.split("|")[1]):
+            head, _, tail = key.rpartition(".")
+            stem, *alternatives = tail.split("/")
+            names = [stem] + [stem[:-len(a)] + a for a in alternatives]
+            keys |= {f"{head}.{t}" if head else t for t in names}
+    return keys
+
+
+def covered(key, documented):
+    return any(key == d or key.startswith(d + ".") for d in documented)
+
+
+def test_2d_and_3d_results_have_the_same_keys_but_the_documented_ones(tmp_path):
+    """The default 2D and 3D runs name every shared quantity alike; the keys only one
+    dimension has are exactly those docs/outputs.md lists, each for a reason."""
+    runs = {}
+    for dim, script, nx in (("2D", "fd_contact_2d.edp", 20), ("3D", "fd_contact_3d.edp", 6)):
+        out = tmp_path / dim
+        proc = run_freefem(script, "-nx", nx, "-outdir", out)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        keys = flat_keys(json.loads((out / "results.json").read_text()))
+        runs[dim] = {k for k in keys if not k.startswith("reactions.by_support.")}   # named for the scene's supports
+    for dim, other in (("2D", "3D"), ("3D", "2D")):
+        documented = documented_one_dimension_keys(dim)
+        only = runs[dim] - runs[other]
+        assert sorted(k for k in only if not covered(k, documented)) == []
+        assert sorted(d for d in documented if not any(covered(k, {d}) for k in only)) == []
