@@ -10,6 +10,7 @@ import re
 from driver import readme
 from driver.runner import REPO
 from driver.scene import script_modules
+from driver.studies import OTHER_TABLES, groups as study_groups, tables
 
 
 def test_scene_reference_is_current():
@@ -42,9 +43,38 @@ def test_doc_links_resolve():
 
 def test_every_table_has_one_marker():
     text = "\n".join(p.read_text() for p in readme.pages())
-    for name in readme.TABLES:
+    for name in tables():
         assert text.count(f"<!-- table:{name} -->") == 1, f"table {name}: expected exactly one marker"
         assert text.count(f"<!-- end:{name} -->") == 1, f"table {name}: expected exactly one end marker"
+        assert callable(readme.table_builder(name))
+
+
+def test_every_table_block_is_declared_by_a_study():
+    """A generated block no study declares would never be refilled."""
+    text = "\n".join(p.read_text() for p in readme.pages())
+    blocks = re.findall(r"<!-- table:([\w-]+) -->\n.*?<!-- end:\1 -->", text, re.S)
+    assert blocks and set(blocks) == set(tables()), set(blocks) ^ set(tables())
+
+
+def make_targets():
+    """The targets of the Makefile: its rules' names, with $(STUDY_GROUPS) expanded."""
+    text = (REPO / "Makefile").read_text().replace("\\\n", " ")
+    variables = dict(re.findall(r"^([A-Z_]+) :?= *(.*)$", text, re.M))
+    targets = set()
+    for line in re.findall(r"^([^\t#=\n][^:=\n]*):(?!=)", text, re.M):
+        for word in line.split():
+            ref = re.fullmatch(r"\$\((\w+)\)", word)
+            targets.update(variables[ref.group(1)].split() if ref else [word])
+    return targets
+
+
+def test_every_study_group_is_a_make_target_that_runs_it():
+    targets = make_targets()
+    declared = set(study_groups()) | set(OTHER_TABLES)
+    assert declared <= targets, f"groups without a make target: {sorted(declared - targets)}"
+    study_targets = set(re.search(r"^STUDY_GROUPS := (.*)$", (REPO / "Makefile").read_text().replace("\\\n", " "),
+                                  re.M).group(1).split())
+    assert study_targets == set(study_groups()), study_targets ^ set(study_groups())
 
 
 OUTSIDE = re.compile(r"DESIGN\.md|\.\./shared|\bissues? #?\d+|/issues/\d+")
