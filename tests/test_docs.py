@@ -2,11 +2,16 @@
 
 docs/scenes.md is written from the driver's schemas by `python -m driver readme`;
 it must be the text the schemas give today and name every key a scene may hold.
-Links between README.md and docs/ must resolve inside the repository.
+Links between README.md and docs/ must resolve inside the repository. The studies'
+declarations (driver/studies/__init__.py) agree with the docs' table markers and the
+Makefile's targets.
 """
 
 import re
 
+import pytest
+
+from conftest import run_cli
 from driver import readme
 from driver.runner import REPO
 from driver.scene import script_modules
@@ -89,3 +94,22 @@ def test_nothing_points_outside_the_repository():
         for number, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
             match = OUTSIDE.search(line)
             assert not match, f"{path.relative_to(REPO)}:{number}: {match.group(0)!r} points outside the repository"
+
+
+def test_a_study_group_runs_its_studies_in_their_order(monkeypatch):
+    import driver.studies
+    from driver import cli
+
+    ran = []
+    monkeypatch.setattr(driver.studies, "study", lambda name: lambda: ran.append(name))
+    assert cli.main(["study", "--group", "hertz-3d-study", "gates"]) == 0
+    assert ran == ["hertz-3d-settings", "hertz-3d-coarse", "hertz-3d-recovery", "hertz-3d", "gates"]
+
+
+@pytest.mark.parametrize("args, message", [
+    ((), "error: study: name a study or a --group"),
+    (("nosuch",), "error: study: unknown study 'nosuch' (python -m driver study --help lists them)"),
+])
+def test_a_study_command_without_a_known_study_is_bad_input(args, message):
+    proc = run_cli("study", *args)
+    assert proc.returncode == 2 and proc.stderr.strip() == message
