@@ -378,7 +378,8 @@ def stop_process(proc):
 
 
 def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None, replace=False):
-    """Run FreeFEM for a validated scene (driver.scene.CheckedScene). Returns (results dict, run folder, wall seconds).
+    """Run FreeFEM for a validated scene (driver.scene.CheckedScene). Returns (results dict,
+    run folder, wall seconds).
 
     FreeFEM writes into a hidden staging folder beside the run folder, claimed
     exclusively and locked while the driver or FreeFEM lives; the staging folder becomes
