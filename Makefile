@@ -151,123 +151,78 @@ mutation: setup
 	$(VENV_PYTHON) tests/mutation/run.py $(if $(strip $(MUTANTS)),--only "$(MUTANTS)")
 	$(VENV_PYTHON) -m driver readme
 
-# Tables and figures of the study pages in docs/ (one target per study; each ends
-# by refilling the generated tables of README.md and docs/*.md: make readme).
-.PHONY: foundation-study
-foundation-study: setup
-	$(VENV_PYTHON) -m driver study foundation-newton square-pressure
-	$(VENV_PYTHON) -m driver readme
-
-# Residual estimators on the square: uniform ladder (slides' table), adaptive loop,
-# adapted mesh figure. The reference (adaptive P2, ~1e6 DOFs) is computed once
-# into runs/reference/square_p2.
-.PHONY: aposteriori-study
-aposteriori-study: setup
-	$(VENV_PYTHON) -m driver study aposteriori-uniform aposteriori-adaptive square-adapted
-	$(VENV_PYTHON) -m driver readme
-
-# Fictitious-domain disk on slab: convergence (P1/P2, theta = 1, 0, -1) against a
-# P2 reference (NX = 320, computed once into runs/reference/), gamma0 sweep at
-# NX = 90, stabilization on sliver cuts, cross-check against body-fitted meshes.
-.PHONY: fd2d-study readme
-fd2d-study: setup
-	$(VENV_PYTHON) -m driver study fd2d-convergence fd2d-dense-ladder fd2d-gamma0 fd2d-stabilization \
-	    fd2d-theta1-stabilization fd2d-crosscheck disk-pressure fd-aposteriori
+# Tables and figures of the study pages in docs/: one target per group of studies, each
+# running `driver study --group TARGET` (the group's studies in their order) and then
+# refilling the generated tables of README.md and docs/*.md (make readme). Which study
+# belongs to which target, and which tables it fills, is declared once per study in
+# driver/studies/__init__.py (STUDIES); tests/test_docs.py checks that every group
+# declared there is listed here.
+#
+# foundation-study: Newton on the foundation square, its contact pressure.
+# aposteriori-study: residual estimators on the square: uniform ladder (slides' table),
+#   adaptive loop, adapted mesh figure. The reference (adaptive P2, ~1e6 DOFs) is computed
+#   once into runs/reference/square_p2.
+# fd2d-study: fictitious-domain disk on slab: convergence (P1/P2, theta = 1, 0, -1)
+#   against a P2 reference (NX = 320, computed once into runs/reference/), gamma0 sweep at
+#   NX = 90, stabilization on sliver cuts, cross-check against body-fitted meshes.
+# pressure-study: the contact pressure of the disk on slab (P2, theta = -1,
+#   docs/outputs.md): the recovered pressure at NX = 40, 80, 160 against body-fitted P2
+#   solutions at h = 1/320 (gamma0 = 1/200 and 1, computed once into runs/reference/), and
+#   the gamma0 trade-off at NX = 160 (errors against the NX = 320 reference of fd2d-study):
+#   results/pressure_*.csv, plots/pressure_*.png.
+# hard-study: the scenes of cases/hard/ (results/hard_cases.csv), the material scaling of
+#   gamma (results/hard_gamma_scaling.csv), the conditioning of the Newton matrix against
+#   the cut (results/hard_conditioning.csv, plots/conditioning.png). The sliver errors use a
+#   P2 NX = 160 reference (computed once into runs/reference/).
+# gates-study: the gates of the two-body solvers (freefem/lib/core/gates.idp) on every
+#   shipped scene of cases/, cases/hard/, cases/verification/: penetration, drift and load
+#   shares against the tolerances (results/gates.csv, table in docs/reliability.md).
+# bench: speed against error on the disk on slab (timings: ratios and medians belong
+#   here, never in tests): results/bench*.csv (Newton grid first: not timed),
+#   plots/speed_vs_error.png. bench-overhead: make case's whole process against the
+#   FreeFEM run alone (medians), MUMPS's phases and the first active set
+#   (results/bench_overhead*.csv, bench_mumps.csv, bench_first_active_set.csv).
+#   bench-solver and bench-3d time the previous version (a scratch git worktree) beside
+#   the current tree: the Newton's linear solver, and the 3D runs' cost by phase with its
+#   growth against DOFs (results/bench_3d*.csv), and the 3D error tool against the graded
+#   reference (results/bench_error_tool*.csv). bench-scale: the large 3D runs against
+#   d58614e, the runs on several processes, the largest 3D run and the scaling model
+#   (results/bench_scale*.csv; BENCH_SCALE_REPEATS, BENCH_SCALE_LARGE_NX).
+# scenes-study: the shipped 2D scenes as a user runs them: results/scenes.csv,
+#   results/hertz.csv (the Hertz scene against Hertz's half-width, force and pressure;
+#   README table).
+# hertz-3d-study: Hertz's sphere on sphere (cases/hertz_spheres.toml) against Hertz
+#   (docs/hertz-3d.md): the settings that suit 3D (gamma0, stabilization, contact points,
+#   cut geometry, grading passes; results/hertz_spheres_settings.csv), the recovery's
+#   options on the shipped run's points (results/hertz_spheres_recovery.csv), then the
+#   scene as shipped, coarser, in P1 and with the 3D defaults (results/hertz_spheres.csv,
+#   README table).
+# curved-study: the curved cut geometry against the P1 one (docs/curved-geometry.md):
+#   cut-cell accuracy, disk-on-slab convergence against a curved P2 NX = 320 reference
+#   (computed once into runs/reference/), cost of the NX = 80 run, and the smooth problems
+#   of cases/verification/ (a patch test with an exact quadratic, the held ring's ladder
+#   against its own NX = 320 references), and the disk on slab on estimator-adapted meshes
+#   against the same reference (results/curved_adaptive.csv), and the disk's approach on
+#   every NX = 48, 56, ..., 400 (results/curved_centre_scan*.csv).
+# fd3d-study: fictitious-domain ball on slab (3D): P1 (theta = 1, 0, -1) and P2 ladders
+#   against a P2 reference graded toward the contact point (cube(15) refined by tetgen to
+#   h = 1/60 within 0.16 of it; FD3D_REFERENCE_* in driver/studies/fd3d.py; computed once
+#   into runs/reference/: 294k DOFs, 26 min, 16.6 GiB peak), cost against DOFs, the
+#   centre-cut von Mises figure; then the estimator-driven tetgen refinement against
+#   uniform refinement (fd3d-adaptive).
+# fd3d-curved-study: the 3D P2 ladder (theta = -1, nx = 8 to 28) on the curved cut
+#   geometry (docs/curved-geometry.md) against fd3d-study's graded reference solved on the
+#   curved geometry (computed once into runs/reference/): results/fd3d_curved_*.csv; then
+#   the 3D smooth problems of cases/verification/ (clamped ball, held shell against its own
+#   nx = 32 reference): results/curved_*_3d*.csv.
+STUDY_GROUPS := foundation-study aposteriori-study fd2d-study pressure-study hard-study gates-study bench \
+	scenes-study hertz-3d-study curved-study fd3d-study fd3d-curved-study
+.PHONY: $(STUDY_GROUPS) readme
+$(STUDY_GROUPS): setup
+	$(VENV_PYTHON) -m driver study --group $@
 	$(VENV_PYTHON) -m driver readme
 
 readme:
-	$(VENV_PYTHON) -m driver readme
-
-# The contact pressure of the disk on slab (P2, theta = -1, docs/outputs.md): the
-# recovered pressure at NX = 40, 80, 160 against body-fitted P2 solutions at h = 1/320
-# (gamma0 = 1/200 and 1, computed once into runs/reference/), and the gamma0 trade-off at
-# NX = 160 (errors against the NX = 320 reference of fd2d-study): results/pressure_*.csv,
-# plots/pressure_*.png.
-.PHONY: pressure-study
-pressure-study: setup
-	$(VENV_PYTHON) -m driver study pressure-recovery pressure-gamma0
-	$(VENV_PYTHON) -m driver readme
-
-# Speed against error on the disk on slab (timings: ratios and medians belong here,
-# never in tests): results/bench*.csv (Newton grid first: not timed), plots/speed_vs_error.png.
-# Hard cases: the scenes of cases/hard/ (results/hard_cases.csv), the
-# material scaling of gamma (results/hard_gamma_scaling.csv), the conditioning of the
-# Newton matrix against the cut (results/hard_conditioning.csv, plots/conditioning.png).
-# The sliver errors use a P2 NX = 160 reference (computed once into runs/reference/).
-.PHONY: hard-study
-hard-study: setup
-	$(VENV_PYTHON) -m driver study hard-cases hard-conditioning
-	$(VENV_PYTHON) -m driver readme
-
-# The gates of the two-body solvers (freefem/lib/core/gates.idp) on every shipped scene
-# of cases/, cases/hard/, cases/verification/: penetration, drift and load shares
-# against the tolerances (results/gates.csv, table in docs/reliability.md).
-.PHONY: gates-study
-gates-study: setup
-	$(PYTHON) -m driver study gates
-	$(PYTHON) -m driver readme
-
-# bench-overhead: make case's whole process against the FreeFEM run alone (medians),
-# MUMPS's phases and the first active set (results/bench_overhead*.csv, bench_mumps.csv,
-# bench_first_active_set.csv). bench-solver and bench-3d time the previous version
-# (a scratch git worktree) beside the current tree: the Newton's linear solver, and
-# the 3D runs' cost by phase with its growth against DOFs (results/bench_3d*.csv), and the
-# 3D error tool against the graded reference (results/bench_error_tool*.csv). bench-scale:
-# the large 3D runs against d58614e, the runs on several processes, the largest 3D run
-# and the scaling model (results/bench_scale*.csv; BENCH_SCALE_REPEATS, BENCH_SCALE_LARGE_NX).
-.PHONY: bench
-bench: setup
-	$(VENV_PYTHON) -m driver study bench-newton bench bench-overhead bench-ordering bench-solver bench-3d bench-3d-large bench-3d-graded bench-error-tool \
-	    bench-scale
-	$(VENV_PYTHON) -m driver readme
-
-# Fictitious-domain ball on slab (3D): P1 (theta = 1, 0, -1) and P2 ladders against a
-# P2 reference graded toward the contact point (cube(15) refined by tetgen to h = 1/60
-# within 0.16 of it; FD3D_REFERENCE_* in driver/studies/fd3d.py; computed once into
-# runs/reference/: 294k DOFs, 26 min, 16.6 GiB peak), cost against DOFs, the centre-cut von Mises figure; then the
-# estimator-driven tetgen refinement against uniform refinement (fd3d-adaptive).
-# The shipped 2D scenes as a user runs them: results/scenes.csv, results/hertz.csv
-# (the Hertz scene against Hertz's half-width, force and pressure; README table).
-.PHONY: scenes-study
-scenes-study: setup
-	$(VENV_PYTHON) -m driver study scenes
-	$(VENV_PYTHON) -m driver readme
-
-# Hertz's sphere on sphere (cases/hertz_spheres.toml) against Hertz (docs/hertz-3d.md): the
-# settings that suit 3D (gamma0, stabilization, contact points, cut geometry, grading passes;
-# results/hertz_spheres_settings.csv), the recovery's options on the shipped run's points
-# (results/hertz_spheres_recovery.csv), then the scene as shipped, coarser, in P1 and with the
-# 3D defaults (results/hertz_spheres.csv, README table).
-.PHONY: hertz-3d-study
-hertz-3d-study: setup
-	$(VENV_PYTHON) -m driver study hertz-3d-settings hertz-3d-coarse hertz-3d-recovery hertz-3d
-	$(VENV_PYTHON) -m driver readme
-
-# The curved cut geometry against the P1 one (docs/curved-geometry.md): cut-cell
-# accuracy, disk-on-slab convergence against a curved P2 NX = 320 reference
-# (computed once into runs/reference/), cost of the NX = 80 run, and the smooth
-# problems of cases/verification/ (a patch test with an exact quadratic, the held
-# ring's ladder against its own NX = 320 references), and the disk on slab on
-# estimator-adapted meshes against the same reference (results/curved_adaptive.csv),
-# and the disk's approach on every NX = 48, 56, ..., 400 (results/curved_centre_scan*.csv).
-.PHONY: curved-study
-curved-study: setup
-	$(VENV_PYTHON) -m driver study curved-geometry curved-convergence curved-smooth curved-adaptive curved-centre-scan
-	$(VENV_PYTHON) -m driver readme
-
-.PHONY: fd3d-study
-fd3d-study: setup
-	$(VENV_PYTHON) -m driver study fd3d-convergence ball-on-slab-figure fd3d-adaptive
-	$(VENV_PYTHON) -m driver readme
-
-# The 3D P2 ladder (theta = -1, nx = 8 to 28) on the curved cut geometry
-# (docs/curved-geometry.md) against fd3d-study's graded reference solved on the curved
-# geometry (computed once into runs/reference/): results/fd3d_curved_*.csv; then the
-# 3D smooth problems of cases/verification/ (clamped ball, held shell against its own
-# nx = 32 reference): results/curved_*_3d*.csv.
-.PHONY: fd3d-curved-study
-fd3d-curved-study: setup
-	$(VENV_PYTHON) -m driver study fd3d-curved-convergence fd3d-curved-smooth
 	$(VENV_PYTHON) -m driver readme
 
 # Parameter sweeps on Dask (docs/sweeps.md): one FreeFEM run per point,

@@ -25,8 +25,9 @@ __all__ = ["run", "Run", "Scene", "DriverError", "SceneError", "NewtonError", "F
 class Scene:
     """A scene's tables, from a TOML file (a path), a TOML text or a dict. Immutable: `set`
     returns a new Scene. `check()` validates it (SceneError naming the key) and returns the
-    validated scene with every default filled in; files a scene names (a gmsh shape) are
-    read next to its file, or from `base_dir` (default: the working folder)."""
+    validated scene, read-only, with every default filled in (driver.scene.CheckedScene);
+    files a scene names (a gmsh shape) are read next to its file, or from `base_dir`
+    (default: the working folder)."""
 
     def __init__(self, source, base_dir=None):
         if isinstance(source, Scene):
@@ -58,7 +59,8 @@ class Scene:
         return new
 
     def check(self, overrides=()):
-        """The validated scene (defaults filled in) and its script module; SceneError if not valid."""
+        """The validated scene (a read-only CheckedScene, defaults filled in) and its script
+        module; SceneError if not valid. This Scene is left as it was."""
         return load_scene_data(self._data, self.source, self.base_dir, overrides)
 
     def to_toml(self):

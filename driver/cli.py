@@ -8,7 +8,7 @@ import sys
 from . import progress
 from .errors import DriverError
 from .runner import Interrupted
-from .studies import REGISTRY as STUDY_NAMES
+from .studies import REGISTRY as STUDY_NAMES, groups as study_groups
 
 # Commands whose parsers need nothing from driver.sweep: for these the sweep
 # commands' parsers (and with them driver.sweep) are not built.
@@ -81,8 +81,14 @@ def cmd_study(args):
     from . import sweep
     from .studies import study
 
+    unknown = [n for n in args.names if n not in STUDY_NAMES]
+    if unknown or not (args.names or args.group):
+        print(f"error: study: unknown study {unknown[0]!r} (python -m driver study --help lists them)" if unknown
+              else "error: study: name a study or a --group", file=sys.stderr)
+        return 2
+    names = [*(study_groups()[args.group] if args.group else []), *args.names]
     sweep.configure(workers=args.workers, scheduler=args.scheduler)
-    for name in args.names:
+    for name in names:
         with progress.study_bar(name):
             study(name)()
     return 0
@@ -124,7 +130,10 @@ def build_parser(argv=None):
     module.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="as for run")
     module.set_defaults(func=cmd_scene_module)
     study = sub.add_parser("study", help="run a study: tables in results/, plots in plots/")
-    study.add_argument("names", nargs="+", choices=sorted(STUDY_NAMES))
+    study.add_argument("names", nargs="*", metavar="NAME",
+                       help=f"a study: {', '.join(sorted(STUDY_NAMES))}")
+    study.add_argument("--group", choices=sorted(study_groups()),
+                       help="the studies of a make target, in their order (driver/studies/__init__.py)")
     study.add_argument("--workers", type=int, help="Dask worker processes for the studies that run their "
                        "points as a sweep (fd2d-convergence, fd2d-gamma0; default: the number of cores)")
     study.add_argument("--scheduler", help="send those points to an existing Dask scheduler tcp://HOST:PORT")

@@ -138,8 +138,11 @@ LEGACY_KEYS = {"body1": {"centre": [0.0, 0.0], "radius": 0.25}, "body2": {"top":
 LEGACY_SHAPES = {"body1": "disk", "body2": "slab"}
 
 
-def check(scene, source):
-    bodies = check_two_bodies(scene, source, 2, LEGACY_SHAPES, LEGACY_KEYS)
+def check(tables, source, base_dir):
+    """Cross-field rules the schema cannot express: (the tables filled in, the derived values);
+    `tables` is left as it was."""
+    scene, derived = check_two_bodies(tables, source, base_dir, 2, LEGACY_SHAPES, LEGACY_KEYS)
+    bodies = derived["bodies"]
     geo, slab = scene["geometry"], scene["body2"]
     line = slab["bottom_line"]
     if isinstance(slab["shape"], str) and line:
@@ -166,15 +169,16 @@ def check(scene, source):
         if bodies.shapes[0].phi(np.array([px]), np.array([py]))[0] >= 0:
             raise SceneError(f"{source}: key 'rigid.fix_x_points': ({px:g}, {py:g}) is not inside body 1")
     scene["rigid"]["fix_x_points"] = fix
+    return scene, derived
 
 
 def freefem_args(scene, mesh_file=""):
     """The script's flags: every key the schema declares, then the values derived here."""
     args = FreeFemFlags([f"-Ddegree={scene['method']['degree']}"])
     put_declared(args, scene, dict(scene=SCENE_HEADER, **SCHEMA))
-    for i in (1, 2):
-        args.put(f"lambda{i}", scene[f"body{i}"]["lame"][0])
-        args.put(f"mu{i}", scene[f"body{i}"]["lame"][1])
+    for i, (lam, mu) in enumerate(scene.lame, 1):
+        args.put(f"lambda{i}", lam)
+        args.put(f"mu{i}", mu)
     fix = scene["rigid"]["fix_x_points"]
     args.put("pins", int(bool(fix)))
     for key, value in zip(("fix_ax", "fix_ay", "fix_bx", "fix_by"), fix):

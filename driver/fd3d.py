@@ -135,8 +135,11 @@ def default_fix_points(bodies):
     return c + [c[0], c[1], c[2] + d], [c[0] + d, c[1], c[2]]
 
 
-def check(scene, source):
-    bodies = check_two_bodies(scene, source, 3, LEGACY_SHAPES, LEGACY_KEYS)
+def check(tables, source, base_dir):
+    """Cross-field rules the schema cannot express: (the tables filled in, the derived values);
+    `tables` is left as it was."""
+    scene, derived = check_two_bodies(tables, source, base_dir, 3, LEGACY_SHAPES, LEGACY_KEYS)
+    bodies = derived["bodies"]
     if not scene["adapt"]["switch"].startswith("r") or "a" not in scene["adapt"]["switch"] or "p" in scene["adapt"]["switch"]:
         raise SceneError(f"{source}: key 'adapt.switch': tetgreconstruction needs 'r' first, 'a', and no 'p'")
     rigid = scene["rigid"]
@@ -150,7 +153,7 @@ def check(scene, source):
     if len(rigid["fix_xy_points"]) not in (0, 6):
         raise SceneError(f"{source}: key 'rigid.fix_xy_points': expected [xA, yA, zA, xB, yB, zB] or [] (no pins)")
     if not bodies.floating(1) or not rigid["fix_xy_points"]:
-        return
+        return scene, derived
     a, b = rigid["fix_xy_points"][:3], rigid["fix_xy_points"][3:]
     for name, point in (("fix_xy_points", a), ("fix_xy_points", b), ("fix_y_point", rigid["fix_y_point"])):
         if bodies.shapes[0].phi(*[np.array([v]) for v in point])[0] >= 0:
@@ -161,6 +164,7 @@ def check(scene, source):
     if abs(rigid["fix_y_point"][0] - a[0]) < 1e-12:
         raise SceneError(f"{source}: key 'rigid.fix_y_point': C must lie off the vertical line "
                          f"through A and B in x (it fixes the rotation about z)")
+    return scene, derived
 
 
 def grade_point(scene):
@@ -182,9 +186,9 @@ def freefem_args(scene, mesh_file=""):
     if scene["mesh"]["grade_h"] > 0:
         for axis, value in zip("xyz", grade_point(scene)):
             args.put(f"grade_{axis}", value)
-    for i in (1, 2):
-        args.put(f"lambda{i}", scene[f"body{i}"]["lame"][0])
-        args.put(f"mu{i}", scene[f"body{i}"]["lame"][1])
+    for i, (lam, mu) in enumerate(scene.lame, 1):
+        args.put(f"lambda{i}", lam)
+        args.put(f"mu{i}", mu)
     pins = scene["rigid"]["fix_xy_points"]
     args.put("pins", int(bool(pins)))       # they act only on a floating body 1
     for key, value in zip(("fix_ax", "fix_ay", "fix_az", "fix_bx", "fix_by", "fix_bz"), pins):

@@ -10,6 +10,7 @@ reference.folder holds a saved solution (mesh.msh, u.txt); foundation_normal is
 not zero; boundary labels exist on the mesh.
 """
 
+import copy
 from pathlib import Path
 
 from . import gmsh_input
@@ -112,20 +113,24 @@ SCHEMA = {
 }
 
 
-def check(scene, source):
-    """Cross-field rules the schema cannot express; fills derived values."""
+def check(tables, source, base_dir):
+    """Cross-field rules the schema cannot express: (the tables, a copy with the reference
+    folder made absolute; the derived values young_nu, geo_path, label_ids). `tables` is left
+    as it was; files it names are read from base_dir."""
+    scene = copy.deepcopy(tables)
     mat = scene["material"]
     if mat["E"] is not None and mat["nu"] is not None:
         if mat["lambda"] is not None or mat["mu"] is not None:
             raise SceneError(f"{source}: key 'material': give either E and nu or lambda and mu, not both")
+        young_nu = (mat["E"], mat["nu"])
     elif mat["lambda"] is not None and mat["mu"] is not None:
-        E, nu = young_from_lame(mat["lambda"], mat["mu"])
-        if not -1.0 < nu < 0.5:
-            raise SceneError(f"{source}: key 'material.lambda': gives a Poisson ratio {nu:.4g} outside (-1, 0.5)")
-        mat["E"], mat["nu"] = E, nu
+        young_nu = young_from_lame(mat["lambda"], mat["mu"])
+        if not -1.0 < young_nu[1] < 0.5:
+            raise SceneError(f"{source}: key 'material.lambda': gives a Poisson ratio {young_nu[1]:.4g} "
+                             f"outside (-1, 0.5)")
     else:
         raise SceneError(f"{source}: key 'material': needs E and nu (or lambda and mu)")
-    geo = scene["geometry"]
+    geo, geo_path = scene["geometry"], None
     if geo["kind"] == "box":
         if not (geo["xmax"] > geo["xmin"] and geo["ymax"] > geo["ymin"]):
             raise SceneError(f"{source}: key 'geometry': the box is empty (need xmax > xmin, ymax > ymin)")
@@ -133,9 +138,8 @@ def check(scene, source):
         raise SceneError(f"{source}: key 'geometry.geo': required when geometry.kind = 'gmsh'")
     else:
         where = f"{source}: key 'geometry.geo'"
-        geo_path = gmsh_input.file_inside(scene.get("_base_dir", Path(source).parent), geo["geo"], where, (".geo",))
+        geo_path = gmsh_input.file_inside(base_dir, geo["geo"], where, (".geo",))
         gmsh_input.check_mesh_sizes(gmsh_input.read_geo(geo_path, where), where)
-        geo["geo_path"] = str(geo_path)
     folder = scene["reference"]["folder"]
     if folder:
         path = Path(folder)
@@ -147,8 +151,9 @@ def check(scene, source):
     normal = scene["contact"]["foundation_normal"]
     if normal[0] ** 2 + normal[1] ** 2 == 0:
         raise SceneError(f"{source}: key 'contact.foundation_normal': must be non-zero")
-    for n, bc in enumerate(scene["boundary"]):
-        bc["label_id"] = label_id(bc["label"], geo["kind"], f"{source}: key 'boundary.{n}.label'")
+    label_ids = tuple(label_id(bc["label"], geo["kind"], f"{source}: key 'boundary.{n}.label'")
+                      for n, bc in enumerate(scene["boundary"]))
+    return scene, {"young_nu": young_nu, "geo_path": geo_path, "label_ids": label_ids}
 
 
 def label_id(label, kind, where):
@@ -168,25 +173,25 @@ def freefem_args(scene, mesh_file=""):
     put = args.put
     put_declared(args, scene, dict(scene=SCENE_HEADER, **SCHEMA))
     put("meshfile", mesh_file)
-    put("E", mat["E"])
-    put("nu", mat["nu"])
+    put("E", scene.young_nu[0])
+    put("nu", scene.young_nu[1])
     put("planestress", int(mat["plane"] == "stress"))
-    by_type = {t: [bc for bc in scene["boundary"] if bc["type"] == t]
+    by_type = {t: [(bc, label) for bc, label in zip(scene["boundary"], scene.label_ids) if bc["type"] == t]
                for t in ("dirichlet", "traction", "contact")}
     put("ndirichlet", len(by_type["dirichlet"]))
-    for i, bc in enumerate(by_type["dirichlet"]):
-        put(f"dirichlet{i}_label", bc["label_id"])
+    for i, (bc, label) in enumerate(by_type["dirichlet"]):
+        put(f"dirichlet{i}_label", label)
         put(f"dirichlet{i}_fix", COMPONENT_BITS[bc["components"]])
         put(f"dirichlet{i}_ux", bc["value"][0])
         put(f"dirichlet{i}_uy", bc["value"][1])
     put("ntraction", len(by_type["traction"]))
-    for i, bc in enumerate(by_type["traction"]):
-        put(f"traction{i}_label", bc["label_id"])
+    for i, (bc, label) in enumerate(by_type["traction"]):
+        put(f"traction{i}_label", label)
         put(f"traction{i}_tx", bc["value"][0])
         put(f"traction{i}_ty", bc["value"][1])
     put("ncontact", len(by_type["contact"]))
-    for i, bc in enumerate(by_type["contact"]):
-        put(f"contact{i}_label", bc["label_id"])
+    for i, (bc, label) in enumerate(by_type["contact"]):
+        put(f"contact{i}_label", label)
     put("npoint", len(scene["point_constraint"]))
     for i, pc in enumerate(scene["point_constraint"]):
         put(f"point{i}_x", pc["point"][0])
@@ -202,8 +207,8 @@ def prepare_mesh(scene, workdir, run_command):
     geo = scene["geometry"]
     if geo["kind"] != "gmsh":
         return ""
-    where = f"{scene['_source']}: key 'geometry.geo'"
-    records = gmsh_input.read_geo(Path(geo["geo_path"]), where)
+    where = f"{scene.source}: key 'geometry.geo'"
+    records = gmsh_input.read_geo(scene.geo_path, where)
     width = gmsh_input.geo_extent(records, axis=0)
     msh = gmsh_input.mesh_geo(records, 2, width / scene["mesh"]["nx"], where, Path(workdir) / "mesh.msh",
                               scene["limits"]["gmsh_s"])

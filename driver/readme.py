@@ -3,7 +3,8 @@
 Study tables: in README.md and docs/*.md a generated block sits between
 `<!-- table:NAME -->` and `<!-- end:NAME -->`; everything between the markers is
 replaced from results/*.csv, nothing else is touched. A table whose CSV is
-missing is left as it is (and reported).
+missing is left as it is (and reported). The study that writes the CSV declares the
+table (driver/studies/__init__.py); this module's function NAME builds it.
 
 Scene reference: docs/scenes.md is written whole from the schemas of the driver
 (one table per FreeFEM script), so that it cannot disagree with what the driver
@@ -15,7 +16,7 @@ allowed values), which core/args.idp applies to a direct run's values;
 tests/test_flags.py checks that the committed files are current.
 """
 
-import functools
+import inspect
 import re
 
 import numpy as np
@@ -23,6 +24,7 @@ import pandas as pd
 
 from .runner import REPO
 from .schema import REQUIRED, TableList, flag_rules
+from .studies import tables
 from .studies.common import markdown_table
 
 RESULTS = REPO / "results"
@@ -178,24 +180,41 @@ def machine_stamp(t):
     return f"\n\nMachine: {t.machine.iloc[0]}; load average (1 min) {t.load_1min.iloc[0]} over the runs."
 
 
-# make-bench tables made from results/NAME.csv by a table function of driver.studies.bench
-STAMPED_BENCH_TABLES = {
-    "bench_overhead": "overhead_table",
-    "bench_overhead_targets": "overhead_targets_table",
-    "bench_solver": "solver_table",
-    "bench_3d": "bench3d_table",
-    "bench_3d_large": "bench3d_large_table",
-    "bench_3d_graded": "bench3d_large_table",
-    "bench_ordering": "ordering_table",
-}
-
-
-def stamped_bench_table(name):
-    """The make-bench table `name` (STAMPED_BENCH_TABLES) with its machine stamp."""
+def stamped_bench_table(name, table_function):
+    """A make-bench table made from results/NAME.csv by a table function of driver.studies.bench,
+    with its machine stamp."""
     from .studies import bench
 
     t = pd.read_csv(RESULTS / f"{name}.csv")
-    return markdown_table(getattr(bench, STAMPED_BENCH_TABLES[name])(t), digits=3) + machine_stamp(t)
+    return markdown_table(getattr(bench, table_function)(t), digits=3) + machine_stamp(t)
+
+
+def bench_overhead():
+    return stamped_bench_table("bench_overhead", "overhead_table")
+
+
+def bench_overhead_targets():
+    return stamped_bench_table("bench_overhead_targets", "overhead_targets_table")
+
+
+def bench_solver():
+    return stamped_bench_table("bench_solver", "solver_table")
+
+
+def bench_3d():
+    return stamped_bench_table("bench_3d", "bench3d_table")
+
+
+def bench_3d_large():
+    return stamped_bench_table("bench_3d_large", "bench3d_large_table")
+
+
+def bench_3d_graded():
+    return stamped_bench_table("bench_3d_graded", "bench3d_large_table")
+
+
+def bench_ordering():
+    return stamped_bench_table("bench_ordering", "ordering_table")
 
 
 def bench_scale_table(name, table_function):
@@ -204,6 +223,22 @@ def bench_scale_table(name, table_function):
 
     t = pd.read_csv(RESULTS / f"{name}.csv")
     return markdown_table(getattr(bench_scale, table_function)(t), digits=3) + machine_stamp(t)
+
+
+def bench_scale():
+    return bench_scale_table("bench_scale", "scale_table")
+
+
+def bench_scale_targets():
+    return bench_scale_table("bench_scale_targets", "scale_targets_table")
+
+
+def bench_scale_mpi():
+    return bench_scale_table("bench_scale_mpi", "scale_mpi_table")
+
+
+def bench_scale_large():
+    return bench_scale_table("bench_scale_large", "scale_large_table")
 
 
 def bench_scale_model():
@@ -379,7 +414,23 @@ def hertz_spheres_table(name, formatter):
     return getattr(hertz3d, formatter)(pd.read_csv(RESULTS / name))
 
 
-def scenes_table():
+def hertz_spheres():
+    return hertz_spheres_table("hertz_spheres.csv", "hertz_table")
+
+
+def hertz_spheres_settings():
+    return hertz_spheres_table("hertz_spheres_settings.csv", "settings_table")
+
+
+def hertz_spheres_recovery():
+    return hertz_spheres_table("hertz_spheres_recovery.csv", "recovery_table")
+
+
+def hertz_spheres_coarse():
+    return hertz_spheres_table("hertz_spheres_coarse.csv", "coarse_table")
+
+
+def scenes():
     t = pd.read_csv(RESULTS / "scenes.csv")
     t["scene"] = t.case.str.replace("cases/", "", regex=False)
     return markdown_table(t[["scene", "dofs", "newton_iterations", "force_y", "balance_error", "wall_s"]], digits=3)
@@ -516,69 +567,25 @@ def mutation_totals():
               f"of test runs.")
 
 
-TABLES = {
-    **{name: functools.partial(stamped_bench_table, name) for name in STAMPED_BENCH_TABLES},
-    "hertz": hertz,
-    "hertz_spheres": functools.partial(hertz_spheres_table, "hertz_spheres.csv", "hertz_table"),
-    "hertz_spheres_settings": functools.partial(hertz_spheres_table, "hertz_spheres_settings.csv", "settings_table"),
-    "hertz_spheres_recovery": functools.partial(hertz_spheres_table, "hertz_spheres_recovery.csv", "recovery_table"),
-    "hertz_spheres_coarse": functools.partial(hertz_spheres_table, "hertz_spheres_coarse.csv", "coarse_table"),
-    "mutation": mutation,
-    "mutation_totals": mutation_totals,
-    "scenes": scenes_table,
-    "hard_cases": hard_cases,
-    "hard_gamma_scaling": hard_gamma_scaling,
-    "hard_conditioning": hard_conditioning,
-    "gates": gates,
-    "bench": bench,
-    "bench_scaling": bench_scaling,
-    "bench_targets": bench_targets,
-    "bench_newton": bench_newton,
-    "bench_solver_budget": bench_solver_budget,
-    "bench_3d_scaling": bench_3d_scaling,
-    "bench_error_tool": bench_error_tool,
-    "bench_mumps": bench_mumps,
-    "bench_first_active_set": bench_first_active_set,
-    "bench_scale": functools.partial(bench_scale_table, "bench_scale", "scale_table"),
-    "bench_scale_targets": functools.partial(bench_scale_table, "bench_scale_targets", "scale_targets_table"),
-    "bench_scale_mpi": functools.partial(bench_scale_table, "bench_scale_mpi", "scale_mpi_table"),
-    "bench_scale_large": functools.partial(bench_scale_table, "bench_scale_large", "scale_large_table"),
-    "bench_scale_model": bench_scale_model,
-    "fd_aposteriori": fd_aposteriori,
-    "fd2d_theta1_stabilization": fd2d_theta1_stabilization,
-    "fd2d_crosscheck": fd2d_crosscheck,
-    "foundation_newton": foundation_newton,
-    "aposteriori_uniform": aposteriori_uniform,
-    "aposteriori_slopes": aposteriori_slopes,
-    "aposteriori_adaptive": aposteriori_adaptive,
-    "aposteriori_adaptive_summary": aposteriori_adaptive_summary,
-    "fd2d_rates": fd2d_rates,
-    "fd2d_dense_rates": fd2d_dense_rates,
-    "fd2d_dense_ladder": fd2d_dense_ladder,
-    "fd2d_dense_rigid": fd2d_dense_rigid,
-    "fd2d_gamma0": fd2d_gamma0,
-    "fd2d_stabilization": fd2d_stabilization,
-    "fd3d_rates": fd3d_rates,
-    "fd3d_convergence": fd3d_convergence,
-    "fd3d_cost": fd3d_cost,
-    "fd3d_adaptive": fd3d_adaptive,
-    "fd3d_curved_rates": fd3d_curved_rates,
-    "fd3d_curved_convergence": fd3d_curved_convergence,
-    "pressure_recovery": pressure_recovery,
-    "pressure_gamma0": pressure_gamma0,
-    "curved_geometry": curved_geometry,
-    "curved_geometry_3d": curved_geometry_3d,
-    "curved_convergence": curved_convergence,
-    "curved_cost": curved_cost,
-    "curved_patch": curved_patch,
-    "curved_smooth_rates": curved_smooth_rates,
-    "curved_smooth": curved_smooth,
-    "curved_adaptive": curved_adaptive,
-    "curved_centre_scan_windows": curved_centre_scan_windows,
-    "curved_patch_3d": functools.partial(curved_patch, "curved_patch_3d.csv", "volume_rel_err"),
-    "curved_smooth_3d_rates": functools.partial(curved_smooth_rates, "curved_smooth_3d_rates.csv"),
-    "curved_smooth_3d": functools.partial(curved_smooth, "curved_smooth_3d.csv", ("peak_rss_mb",)),
-}
+def curved_patch_3d():
+    return curved_patch("curved_patch_3d.csv", "volume_rel_err")
+
+
+def curved_smooth_3d_rates():
+    return curved_smooth_rates("curved_smooth_3d_rates.csv")
+
+
+def curved_smooth_3d():
+    return curved_smooth("curved_smooth_3d.csv", ("peak_rss_mb",))
+
+
+def table_builder(name):
+    """The function of this module that builds docs table `name` (a study declares the
+    tables it fills: driver/studies/__init__.py); KeyError when there is none."""
+    make = globals().get(name)
+    if not (inspect.isfunction(make) and make.__module__ == __name__):
+        raise KeyError(f"table {name}: no function {name} in {__name__}")
+    return make
 
 
 def pages():
@@ -588,14 +595,14 @@ def pages():
 
 def refill(text, built, found):
     """Replace every known table block in text; tables are computed once (built) and their names recorded."""
-    for name, make in TABLES.items():
+    for name in tables():
         pattern = re.compile(rf"(<!-- table:{name} -->\n)(.*?)(<!-- end:{name} -->)", re.S)
         if not pattern.search(text):
             continue
         found.add(name)
         if name not in built:
             try:
-                built[name] = make()
+                built[name] = table_builder(name)()
             except FileNotFoundError as exc:
                 print(f"readme: {name}: {exc.filename} missing, table left as it was")
                 built[name] = None
@@ -811,6 +818,6 @@ def update():
         names = sorted(n for n in built if n in found and re.search(f"<!-- table:{n} -->", new))
         if names:
             print(f"readme: {path.relative_to(REPO)}: {', '.join(names)}")
-    for name in TABLES:
+    for name in tables():
         if name not in found:
             print(f"readme: {name}: no <!-- table:{name} --> marker in README.md or docs/")

@@ -378,7 +378,8 @@ def stop_process(proc):
 
 
 def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None, replace=False):
-    """Run FreeFEM for a validated scene. Returns (results dict, run folder, wall seconds).
+    """Run FreeFEM for a validated scene (driver.scene.CheckedScene). Returns (results dict,
+    run folder, wall seconds).
 
     FreeFEM writes into a hidden staging folder beside the run folder, claimed
     exclusively and locked while the driver or FreeFEM lives; the staging folder becomes
@@ -390,7 +391,7 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
     runs_dir = Path(runs_dir or default_runs_dir()).resolve()
     script = Path(script) if script else FREEFEM_DIR / f"{scene['scene']['script']}.edp"
     if not script.is_file():
-        raise SceneError(f"{scene['_source']}: FreeFEM script not found: {script}")
+        raise SceneError(f"{scene.source}: FreeFEM script not found: {script}")
     ensure_plugins()
     solver = scene.get("solver", {})
     ranks = solver.get("ranks", 1)
@@ -406,15 +407,14 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
             k += 1
             final = base.with_name(f"{base.name}-{k}")
     check_output_folder(final, replace)
-    check_fits(scene, scene["_source"])
+    check_fits(scene, scene.source)
     limits = run_limits(scene)
     retire_stale_siblings(final.parent)
     staging = final.with_name(f".{final.name}.staging")   # same filesystem: rename is atomic
     lock = claim_staging(staging, final)
     proc = None
     try:
-        (staging / "scene.json").write_text(json.dumps(
-            {k: v for k, v in scene.items() if not k.startswith("_")}, indent=2, default=str))
+        (staging / "scene.json").write_text(json.dumps(scene.to_dict(), indent=2, default=str))
         mesh_file = module.prepare_mesh(scene, staging, run_command)
         args = module.freefem_args(scene, mesh_file=mesh_file)
         entry = write_scene_module(scene, module, script, staging)

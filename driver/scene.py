@@ -1,5 +1,9 @@
 """Scene files: TOML loading, --set overrides by dotted key, validation, dispatch.
 
+Validation leaves what it is given as it was and returns a CheckedScene: the tables,
+read-only, with every default filled in, and what the script module's check derived
+from them (the bodies, the Lame coefficients, ...) as attributes.
+
 A scene names the FreeFEM script that solves it (scene.script); each script has
 a module here with its schema and its mapping to FreeFEM command-line flags.
 """
@@ -8,11 +12,110 @@ import copy
 import json
 import math
 import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
+from types import ModuleType
 
 from .errors import SceneError
 from .header import LIMITS, SCENE_HEADER, check_units
 from .schema import validate
+
+
+class FrozenTable(dict):
+    """A table of a checked scene: a dict that refuses changes (so that it still reads,
+    prints and serializes as one)."""
+
+    def refuse(self, *args, **kwargs):
+        raise TypeError("a checked scene is read-only (fdcontact.Scene.set makes a changed scene)")
+
+    __setitem__ = __delitem__ = __ior__ = clear = pop = popitem = setdefault = update = refuse
+
+    def __copy__(self):
+        return self
+
+    def __deepcopy__(self, memo):
+        return self
+
+    def __reduce__(self):
+        return FrozenTable, (dict(self),)
+
+
+class FrozenList(list):
+    """An array of a checked scene: a list that refuses changes."""
+
+    refuse = FrozenTable.refuse
+    __setitem__ = __delitem__ = __iadd__ = __imul__ = append = clear = extend = insert = pop = remove = \
+        reverse = sort = refuse
+
+    def __copy__(self):
+        return self
+
+    def __deepcopy__(self, memo):
+        return self
+
+    def __reduce__(self):
+        return FrozenList, (list(self),)
+
+
+def frozen(value):
+    """A read-only copy of nested tables and arrays."""
+    if isinstance(value, dict):
+        return FrozenTable({k: frozen(v) for k, v in value.items()})
+    if isinstance(value, list):
+        return FrozenList(frozen(v) for v in value)
+    return value
+
+
+def thawed(value):
+    """A plain, changeable copy of nested tables and arrays."""
+    if isinstance(value, dict):
+        return {k: thawed(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [thawed(v) for v in value]
+    return value
+
+
+@dataclass(frozen=True, eq=False)
+class CheckedScene(Mapping):
+    """A validated scene, read-only: its tables with every default filled in (read as a
+    mapping: scene["mesh"]["nx"]), and what validation derived from them as attributes.
+
+    source: how errors name the scene; base_dir: the folder the files it names are read
+    from; module: its script's module (driver/fd2d.py, fd3d.py, foundation.py). Two-body
+    scripts: bodies (driver/scene_module.Bodies: shapes, supports, loads, probes) and lame
+    (each body's (lambda, mu)). Foundation: young_nu ((E, nu)), geo_path (a gmsh scene's
+    .geo file) and label_ids (each boundary's label as the mesh's id)."""
+
+    tables: FrozenTable
+    module: ModuleType
+    source: str
+    base_dir: Path
+    bodies: object = None
+    lame: tuple = ()
+    young_nu: tuple = ()
+    geo_path: Path = None
+    label_ids: tuple = ()
+
+    def __getitem__(self, key):
+        return self.tables[key]
+
+    def __iter__(self):
+        return iter(self.tables)
+
+    def __len__(self):
+        return len(self.tables)
+
+    def __copy__(self):
+        return self
+
+    def __deepcopy__(self, memo):
+        return self
+
+    def to_dict(self):
+        """The tables as plain dicts and lists (what scene.json holds)."""
+        return thawed(self.tables)
+
 
 def full_schema(module):
     """Every table a scene of this script module may hold."""
@@ -117,7 +220,7 @@ def parse_toml(text, source):
 
 
 def load_scene(path, overrides=()):
-    """Read, override and validate a scene file; return (scene dict, script module)."""
+    """Read, override and validate a scene file; return (CheckedScene, script module)."""
     path = Path(path)
     source = str(path)
     data = parse_toml(read_text_file(path, "scene file"), source)
@@ -126,7 +229,8 @@ def load_scene(path, overrides=()):
 
 def load_scene_data(data, source, base_dir, overrides=()):
     """Override and validate a scene given as tables (source: how errors name it; base_dir:
-    the folder its files, e.g. a gmsh shape's, are read from); (scene dict, script module)."""
+    the folder its files, e.g. a gmsh shape's, are read from); (CheckedScene, script module).
+    `data` is left as it was."""
     if not isinstance(data, dict):
         raise SceneError(f"{source}: a scene is a table of tables, got {type(data).__name__}")
     data = copy.deepcopy(data)
@@ -140,11 +244,9 @@ def load_scene_data(data, source, base_dir, overrides=()):
         known = ", ".join(sorted(modules))
         raise SceneError(f"{source}: key 'scene.script': unknown script {header['script']!r} (known: {known})")
     module = modules[header["script"]]
-    scene = validate(data, full_schema(module), source)
-    scene["_base_dir"] = Path(base_dir)
-    module.check(scene, source)
-    scene["_source"] = source
-    return scene, module
+    base_dir = Path(base_dir)
+    tables, derived = module.check(validate(data, full_schema(module), source), source, base_dir)
+    return CheckedScene(frozen(tables), module, source, base_dir, **derived), module
 
 
 def toml_literal(value):

@@ -7,6 +7,7 @@ them against the box (a body outside the box, bodies that overlap at the start, 
 probe outside its body: one SceneError each) and writes the module text.
 """
 
+import copy
 import functools
 import math
 import tempfile
@@ -350,17 +351,18 @@ def fill_legacy(scene, source, shapes, defaults):
                                  f"{shapes[key]!r}, not to a shape table")
 
 
-def check_two_bodies(scene, source, dim, legacy_shapes, legacy_keys):
+def check_two_bodies(tables, source, base_dir, dim, legacy_shapes, legacy_keys):
     """The checks the 2D and 3D fictitious-domain scenes share: a box of positive size,
     each body's Lame coefficients, the legacy keys filled, the legacy slab's top inside
-    the box (along its last axis), the legacy supports and probe, the bodies (kept as
-    scene["_bodies"]); adaptation needs the estimators. Returns the bodies."""
+    the box (along its last axis), the legacy supports and probe, the bodies (their files
+    read from base_dir); adaptation needs the estimators. Returns the tables filled in (a
+    copy: `tables` is left as it was) and the derived values: bodies, lame."""
+    scene = copy.deepcopy(tables)
     geo = scene["geometry"]
     axes = "xyz"[:dim]
     if not all(geo[f"{a}max"] > geo[f"{a}min"] for a in axes):
         raise SceneError(f"{source}: key 'geometry': the box is empty (need max > min on every axis)")
-    for key in ("body1", "body2"):
-        scene[key]["lame"] = body_lame(scene[key], source, key)
+    lame = tuple(body_lame(scene[key], source, key) for key in ("body1", "body2"))
     fill_legacy(scene, source, legacy_shapes, legacy_keys)
     slab, vertical = scene["body2"], axes[-1]
     if isinstance(slab["shape"], str) and not geo[f"{vertical}min"] < slab["top"] < geo[f"{vertical}max"]:
@@ -368,7 +370,7 @@ def check_two_bodies(scene, source, dim, legacy_shapes, legacy_keys):
                          f"({geo[vertical + 'min']}, {geo[vertical + 'max']})")
     legacy_supports(scene, dim)
     legacy_probe(scene)
-    bodies = Bodies(scene, dim, source, scene.get("_base_dir", Path(source).parent))
+    bodies = Bodies(scene, dim, source, base_dir)
     try:
         text = bodies.module_text(scene["scene"]["name"])
     except SceneError as exc:
@@ -376,10 +378,9 @@ def check_two_bodies(scene, source, dim, legacy_shapes, legacy_keys):
     if len(text) > MAX_MODULE_CHARS:
         raise SceneError(f"{source}: the scene module would be {len(text):,} characters; at most "
                          f"{MAX_MODULE_CHARS:,} (use fewer or simpler shapes, regions and polygons)")
-    scene["_bodies"] = bodies
     if scene["adapt"]["steps"] > 0 and not scene["output"]["estimators"]:
         raise SceneError(f"{source}: key 'adapt.steps': adaptation (adapt.steps > 0) needs output.estimators = true")
-    return bodies
+    return scene, {"bodies": bodies, "lame": lame}
 
 
 def legacy_probe(scene):
@@ -389,7 +390,7 @@ def legacy_probe(scene):
 
 def scene_module(scene):
     """Text of a checked scene's module (the runner writes it as RUN/scene.idp)."""
-    return scene["_bodies"].module_text(scene["scene"]["name"])
+    return scene.bodies.module_text(scene["scene"]["name"])
 
 
 def legacy_supports(scene, dim):

@@ -2,14 +2,20 @@
 
 docs/scenes.md is written from the driver's schemas by `python -m driver readme`;
 it must be the text the schemas give today and name every key a scene may hold.
-Links between README.md and docs/ must resolve inside the repository.
+Links between README.md and docs/ must resolve inside the repository. The studies'
+declarations (driver/studies/__init__.py) agree with the docs' table markers and the
+Makefile's targets.
 """
 
 import re
 
+import pytest
+
+from conftest import run_cli
 from driver import readme
 from driver.runner import REPO
 from driver.scene import script_modules
+from driver.studies import OTHER_TABLES, groups as study_groups, tables
 
 
 def test_scene_reference_is_current():
@@ -42,9 +48,38 @@ def test_doc_links_resolve():
 
 def test_every_table_has_one_marker():
     text = "\n".join(p.read_text() for p in readme.pages())
-    for name in readme.TABLES:
+    for name in tables():
         assert text.count(f"<!-- table:{name} -->") == 1, f"table {name}: expected exactly one marker"
         assert text.count(f"<!-- end:{name} -->") == 1, f"table {name}: expected exactly one end marker"
+        assert callable(readme.table_builder(name))
+
+
+def test_every_table_block_is_declared_by_a_study():
+    """A generated block no study declares would never be refilled."""
+    text = "\n".join(p.read_text() for p in readme.pages())
+    blocks = re.findall(r"<!-- table:([\w-]+) -->\n.*?<!-- end:\1 -->", text, re.S)
+    assert blocks and set(blocks) == set(tables()), set(blocks) ^ set(tables())
+
+
+def make_targets():
+    """The targets of the Makefile: its rules' names, with $(STUDY_GROUPS) expanded."""
+    text = (REPO / "Makefile").read_text().replace("\\\n", " ")
+    variables = dict(re.findall(r"^([A-Z_]+) :?= *(.*)$", text, re.M))
+    targets = set()
+    for line in re.findall(r"^([^\t#=\n][^:=\n]*):(?!=)", text, re.M):
+        for word in line.split():
+            ref = re.fullmatch(r"\$\((\w+)\)", word)
+            targets.update(variables[ref.group(1)].split() if ref else [word])
+    return targets
+
+
+def test_every_study_group_is_a_make_target_that_runs_it():
+    targets = make_targets()
+    declared = set(study_groups()) | set(OTHER_TABLES)
+    assert declared <= targets, f"groups without a make target: {sorted(declared - targets)}"
+    study_targets = set(re.search(r"^STUDY_GROUPS := (.*)$", (REPO / "Makefile").read_text().replace("\\\n", " "),
+                                  re.M).group(1).split())
+    assert study_targets == set(study_groups()), study_targets ^ set(study_groups())
 
 
 OUTSIDE = re.compile(r"DESIGN\.md|\.\./shared|\bissues? #?\d+|/issues/\d+")
@@ -59,3 +94,22 @@ def test_nothing_points_outside_the_repository():
         for number, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
             match = OUTSIDE.search(line)
             assert not match, f"{path.relative_to(REPO)}:{number}: {match.group(0)!r} points outside the repository"
+
+
+def test_a_study_group_runs_its_studies_in_their_order(monkeypatch):
+    import driver.studies
+    from driver import cli
+
+    ran = []
+    monkeypatch.setattr(driver.studies, "study", lambda name: lambda: ran.append(name))
+    assert cli.main(["study", "--group", "hertz-3d-study", "gates"]) == 0
+    assert ran == ["hertz-3d-settings", "hertz-3d-coarse", "hertz-3d-recovery", "hertz-3d", "gates"]
+
+
+@pytest.mark.parametrize("args, message", [
+    ((), "error: study: name a study or a --group"),
+    (("nosuch",), "error: study: unknown study 'nosuch' (python -m driver study --help lists them)"),
+])
+def test_a_study_command_without_a_known_study_is_bad_input(args, message):
+    proc = run_cli("study", *args)
+    assert proc.returncode == 2 and proc.stderr.strip() == message

@@ -2,8 +2,11 @@
 literate example of docs/, a published folder that re-runs, provenance, units, and what
 a wheel ships (FreeFEM scripts, plugins' sources, scenes, the console script)."""
 
+import copy
+import dataclasses
 import json
 import os
+import pickle
 import shutil
 import subprocess
 import sys
@@ -58,6 +61,41 @@ def test_a_scene_written_as_toml_reads_back_the_same(tmp_path):
     assert again.check()[0]["mesh"]["nx"] == 30
     with pytest.raises(fdcontact.SceneError):
         scene.write(path)     # never over an existing file
+
+
+@pytest.mark.parametrize("case", ["disk_on_slab.toml", "ball_on_slab.toml", "patch_block.toml",
+                                  "square_slip_separation_gmsh.toml"])
+def test_checking_a_scene_leaves_what_it_was_given_and_returns_a_read_only_scene(case):
+    import driver as fdcontact
+    from driver.scene import full_schema, load_scene_data, parse_toml, read_text_file, validate
+
+    path = REPO / "cases" / case
+    data = parse_toml(read_text_file(path, "scene file"), str(path))
+    given = copy.deepcopy(data)
+    checked, module = load_scene_data(data, str(path), path.parent, ["mesh.nx=6"])
+    assert data == given
+    tables = validate(data, full_schema(module), str(path))
+    validated = copy.deepcopy(tables)
+    filled, derived = module.check(tables, str(path), path.parent)
+    assert tables == validated and filled is not tables and derived
+    assert checked.module is module and checked["mesh"]["nx"] == 6
+    assert not any(key.startswith("_") for key in checked) and "lame" not in checked.get("body1", {})
+    with pytest.raises(TypeError):
+        checked["mesh"]["nx"] = 7
+    with pytest.raises(TypeError):
+        checked["scene"].update(name="other")
+    with pytest.raises(TypeError):
+        (checked.get("probe") or checked.get("boundary")).append({})
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        checked.source = "other"
+    assert json.loads(json.dumps(checked.to_dict())) == json.loads(json.dumps(checked.tables))
+    assert pickle.loads(pickle.dumps(checked.tables)) == checked.tables
+
+    scene = fdcontact.Scene(path)
+    original = scene.data
+    changed = scene.set("mesh.nx", 7)
+    assert changed is not scene and scene.data == original and changed.data["mesh"]["nx"] == 7
+    assert scene.check()[0]["mesh"]["nx"] == original["mesh"]["nx"] and scene.data == original
 
 
 @pytest.mark.freefem
