@@ -65,23 +65,28 @@ def add_inside_stress(path):
     os.replace(tmp, path)
 
 
-def write_collection(folder, datasets, timestep):
-    """bodies.pvd: the files (name, file) as parts of one timestep."""
-    rows = "\n".join(f'    <DataSet timestep="{timestep}" part="{k}" file="{file}" name="{name}"/>'
-                     for k, (name, file) in enumerate(datasets))
+def write_collection(folder, datasets):
+    """bodies.pvd: the datasets (timestep, name, file), each body a part of its timestep."""
+    rows = "\n".join(f'    <DataSet timestep="{step}" part="{k}" file="{file}" name="{name}"/>'
+                     for step, k, name, file in datasets)
     (Path(folder) / PVD).write_text('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n'
                                     f"  <Collection>\n{rows}\n  </Collection>\n</VTKFile>\n")
 
 
 def paraview_files(folder, results):
     """For a two-body run that wrote its bodies' VTUs: von_mises_inside in each, and
-    bodies.pvd; results.json's outputs gain "pvd". Nothing for other runs."""
+    bodies.pvd over the adaptation steps (the earlier steps' files steps/bodyI_K.vtu,
+    the last step's bodyI.vtu); results.json's outputs gain "pvd". Nothing for other runs."""
     outputs = results.get("outputs") or {}
-    bodies = [(name, outputs.get(f"vtu_{name}")) for name in ("body1", "body2")]
-    if not all(file and (Path(folder) / file).is_file() for _, file in bodies):
+    last = [(name, outputs.get(f"vtu_{name}")) for name in ("body1", "body2")]
+    if not all(file and (Path(folder) / file).is_file() for _, file in last):
         return
-    for _, file in bodies:
-        add_inside_stress(Path(folder) / file)
     steps = len((results.get("steps") or {}).get("dofs") or [1])
-    write_collection(folder, bodies, steps - 1)
+    datasets = [(step, k, name, f"steps/{name}_{step}.vtu")
+                for step in range(steps - 1) for k, name in enumerate(("body1", "body2"))]
+    datasets = [d for d in datasets if (Path(folder) / d[3]).is_file()]
+    datasets += [(steps - 1, k, name, file) for k, (name, file) in enumerate(last)]
+    for *_, file in datasets:
+        add_inside_stress(Path(folder) / file)
+    write_collection(folder, datasets)
     outputs["pvd"] = PVD

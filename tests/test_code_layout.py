@@ -52,8 +52,8 @@ def stage_sequence(script):
     """The stage macros the step loop expands, in order (one name per line, as written)."""
     text = code(script)
     loop = text[text.index("for (int step = 0;"):]
-    return re.findall(r"^\s*(fd(?:Stage\w+|SolutionFields|EstimatorsStage|StepRecord|AdaptStop|Results\w+|"
-                      r"AdaptBackground))\b", loop, re.M)
+    return re.findall(r"^\s*(fd(?:Stage\w+|SolutionFields|ContactPressures|EstimatorsStage|StepRecord|AdaptStop|Results\w+|"
+                      r"StepBodiesVtu|AdaptBackground))\b", loop, re.M)
 
 
 def test_the_2d_and_3d_scripts_run_the_same_stages_in_the_same_order():

@@ -7,6 +7,7 @@ import dataclasses
 import json
 import os
 import pickle
+import re
 import shutil
 import subprocess
 import sys
@@ -214,11 +215,17 @@ def test_paraview_sees_both_bodies_and_the_plots_stress(tmp_path):
     r = driver_results("cases/hertz_cylinders.toml", out, "adapt.steps=2")
     assert r["outputs"]["pvd"] == "bodies.pvd"
     pvd = (out / "bodies.pvd").read_text()
-    assert 'timestep="2" part="0" file="body1.vtu"' in pvd and 'part="1" file="body2.vtu"' in pvd
-    for name in ("body1", "body2"):
+    listed = re.findall(r'timestep="(\d+)" part="(\d)" file="([^"]+)"', pvd)
+    assert listed == [("0", "0", "steps/body1_0.vtu"), ("0", "1", "steps/body2_0.vtu"),
+                      ("1", "0", "steps/body1_1.vtu"), ("1", "1", "steps/body2_1.vtu"),
+                      ("2", "0", "body1.vtu"), ("2", "1", "body2.vtu")]    # every adaptation step
+    dofs = [meshio.read(out / f"steps/body1_{k}.vtu").points.shape[0] for k in (0, 1)]
+    assert dofs[0] < dofs[1] < meshio.read(out / "body1.vtu").points.shape[0]   # refined step by step
+    for name in ("body1", "body2", "steps/body1_0", "steps/body2_1"):
         mesh = meshio.read(out / f"{name}.vtu")
         vm, inside = (np.asarray(mesh.point_data[k]).reshape(-1) for k in ("von_mises", "von_mises_inside"))
         phi = np.asarray(mesh.point_data["phi"]).reshape(-1)
         assert (inside[phi < 0] == vm[phi < 0]).all()
         assert inside.max() == vm[phi < 0].max() and inside.min() >= vm[phi < 0].min()
-        assert vm.max() > 1.5 * vm[phi < 0].max()      # what ParaView's colour range used to take
+        if "/" not in name:   # the last step's cut-cell peaks: what ParaView's colour range used to take
+            assert vm.max() > 1.5 * vm[phi < 0].max()
