@@ -58,6 +58,10 @@ def test_adaptive_refinement_lowers_eta_and_keeps_the_ball(run_scene):
     assert steps["measure_body1"][-1] == pytest.approx(BALL_VOLUME, rel=0.1)
     # the refined P1 ball grows towards the exact one (its P1 interpolant is inscribed)
     assert steps["measure_body1"][0] < steps["measure_body1"][-1] < BALL_VOLUME
+    # every step's bodies for ParaView, timestep by timestep (bodies.pvd)
+    pvd = (run.folder / "bodies.pvd").read_text()
+    assert [pvd.count(f'timestep="{k}"') for k in range(4)] == [2, 2, 2, 0]
+    assert all((run.folder / f"steps/body{b}_{k}.vtu").is_file() for b in (1, 2) for k in (0, 1))
     for volume in steps["measure_body2"]:
         assert volume == pytest.approx(0.25, rel=1e-8)
     # the clamp (label 5) and the pins survive remeshing: the equilibrium holds
