@@ -121,7 +121,11 @@ def missing_includes(path, defined, source=None):
     dimensions define is a hook the script supplies."""
     source = path.read_text() if source is None else source
     text = re.sub(r"//[^\n]*", "", re.sub(r"/\*.*?\*/", " ", source, flags=re.S))
+    text = re.sub(r'"[^"\n]*"', '""', text)   # words in strings name nothing
     own = set(re.findall(r"^\s*macro\s+(\w+)", text, re.M))
+    # a macro's parameter is the macro's own name for its argument, not a module's macro
+    own |= {p.strip() for params in re.findall(r"^\s*macro\s+\w+\(([^)]*)\)", text, re.M)
+            for p in params.split(",")}
     included = {FREEFEM / m for m in re.findall(r'include\s+"freefem/([^"]+)"', source)}
     needed = set()
     for name in set(re.findall(r"\b[A-Za-z_]\w*\b", text)) - own:

@@ -20,6 +20,8 @@ DISK = "cases/disk_on_slab.toml"
 EXCLUDED_PATHS = {
     ("timings_cpu_s",),
     ("steps", "cpu_s"),
+    ("adapt", "estimate_cpu_s"),
+    ("adapt", "remesh_cpu_s"),
     ("wall_s",),
     ("peak_rss_mb",),
     ("provenance",),
