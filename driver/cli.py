@@ -7,6 +7,7 @@ import os
 import re
 import signal
 import sys
+from pathlib import Path
 
 from . import progress
 from .errors import DriverError
@@ -108,9 +109,13 @@ def lab_command(argv):
         return 2
     if __package__ != "driver":
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])))
-        os.execve(sys.executable, [sys.executable, "-P", "-m", "lab", *argv], env)
+        try:
+            os.execve(sys.executable, [sys.executable, "-P", "-m", "lab", *argv], env)
+        except OSError as exc:
+            print(f"error: {command}: cannot start {sys.executable} -m lab: {exc.strerror or exc}", file=sys.stderr)
+            return 4
     found = importlib.util.find_spec("lab")
-    if found is None or found.origin != str(LAB / "__init__.py"):
+    if found is None or Path(found.origin).resolve() != (LAB / "__init__.py").resolve():
         print(f"error: {command}: the module lab found first ({found.origin if found else 'none'}) is not the "
               f"checkout's {LAB}", file=sys.stderr)
         return 2

@@ -100,8 +100,8 @@ def code_digest(extra=()):
     digest = hashlib.sha256()
     files = [(path, path.relative_to(REPO)) for pattern in ("*.edp", "*.idp", "*.cpp", "*.hpp")
              for path in sorted((REPO / "freefem").rglob(pattern))]
-    for path in [PACKAGE / f"{module}.py" for module in CODE_MODULES] + [module_file(m) for m in extra]:
-        files.append((path, path.relative_to(PACKAGE.parent)))
+    files += [(PACKAGE / f"{module}.py", f"{PACKAGE.name}/{module}.py") for module in CODE_MODULES]
+    files += [(module_file(module), module) for module in extra]
     for path, name in files:
         if path.is_file():
             digest.update(str(name).encode() + b"\0" + path.read_bytes())

@@ -229,6 +229,27 @@ def test_the_lab_runs_from_a_checkout_under_each_name_of_the_package(tmp_path):
     assert proc.returncode == 2 and proc.stderr == expected.format("python -m lab")
 
 
+def test_python_m_driver_runs_only_the_checkouts_lab(tmp_path):
+    """A module lab found before the checkout's (here: in the working folder) is refused."""
+    (tmp_path / "lab").mkdir()
+    (tmp_path / "lab" / "__init__.py").write_text("raise SystemExit('the wrong lab was imported')\n")
+    proc = subprocess.run([sys.executable, "-m", "driver", "readme"], cwd=tmp_path, capture_output=True, text=True,
+                          env=dict(os.environ, PYTHONPATH=str(REPO)))
+    assert proc.returncode == 2 and proc.stderr == (f"error: readme: the module lab found first "
+                                                    f"({tmp_path / 'lab' / '__init__.py'}) is not the checkout's "
+                                                    f"{REPO / 'lab'}\n")
+
+
+def test_a_study_tasks_sweep_key_covers_its_lab_module():
+    """A study's Dask task (lab.studies.fd2d:run_with_errors) is keyed by its module's source
+    too, found beside the package: a change to the study reruns its points."""
+    from driver import sweep
+
+    assert sweep.module_file("lab.studies.fd2d") == REPO / "lab" / "studies" / "fd2d.py"
+    assert sweep.code_digest(extra=("lab.studies.fd2d",)) not in (sweep.code_digest(),
+                                                                   sweep.code_digest(extra=("lab.studies.fd3d",)))
+
+
 @pytest.mark.freefem
 @pytest.mark.parametrize("case, overrides", [
     ("cases/square_slip_separation.toml", ["mesh.nx=8"]),

@@ -1,5 +1,5 @@
-"""What every study shares: where tables and figures go, one run as a table row
-(run_point, the sweeps' own), cached references, log-log slopes and Markdown tables."""
+"""What every study shares: where tables and figures go, cached references, log-log
+slopes and Markdown tables (one run as a table row: driver.sweep.run_point)."""
 
 import sys
 from pathlib import Path
@@ -9,7 +9,6 @@ import numpy as np
 from driver.progress import run_started, write
 from driver.runner import REPO, run_freefem_tool, run_scene
 from driver.scene import load_scene
-
 
 RESULTS_DIR = REPO / "results"
 PLOTS_DIR = REPO / "plots"
