@@ -152,11 +152,11 @@ mutation: setup
 	$(VENV_PYTHON) -m driver readme
 
 # Tables and figures of the study pages in docs/: one target per group of studies, each
-# running `driver study --group TARGET` (the group's studies in their order) and then
-# refilling the generated tables of README.md and docs/*.md (make readme). Which study
-# belongs to which target, and which tables it fills, is declared once per study in
-# driver/studies/__init__.py (STUDIES); tests/test_docs.py checks that every group
-# declared there is listed here.
+# running `python -m driver study --group TARGET` (the group's studies in their order; the
+# lab's command, which the driver hands to lab/ in a checkout) and then refilling the
+# generated tables of README.md and docs/*.md (make readme). Which study belongs to which
+# target, and which tables it fills, is declared once per study in lab/studies/__init__.py
+# (STUDIES); tests/test_docs.py checks that every group declared there is listed here.
 #
 # foundation-study: Newton on the foundation square, its contact pressure.
 # aposteriori-study: residual estimators on the square: uniform ladder (slides' table),
@@ -206,7 +206,7 @@ mutation: setup
 #   every NX = 48, 56, ..., 400 (results/curved_centre_scan*.csv).
 # fd3d-study: fictitious-domain ball on slab (3D): P1 (theta = 1, 0, -1) and P2 ladders
 #   against a P2 reference graded toward the contact point (cube(15) refined by tetgen to
-#   h = 1/60 within 0.16 of it; FD3D_REFERENCE_* in driver/studies/fd3d.py; computed once
+#   h = 1/60 within 0.16 of it; FD3D_REFERENCE_* in lab/studies/fd3d.py; computed once
 #   into runs/reference/: 294k DOFs, 26 min, 16.6 GiB peak), cost against DOFs, the
 #   centre-cut von Mises figure; then the estimator-driven tetgen refinement against
 #   uniform refinement (fd3d-adaptive).

@@ -1,18 +1,30 @@
-"""Command line: python -m driver run SCENE [--set key=value ...], scene-module, study, sweep, plot, readme."""
+"""Command line: python -m driver run SCENE [--set key=value ...], scene-module, sweep, plot;
+study and readme in a checkout (the lab's)."""
 
 import argparse
+import importlib.util
+import os
 import re
 import signal
 import sys
+from pathlib import Path
 
 from . import progress
 from .errors import DriverError
+from .paths import IN_CHECKOUT, REPO
 from .runner import Interrupted
-from .studies import REGISTRY as STUDY_NAMES, groups as study_groups
 
 # Commands whose parsers need nothing from driver.sweep: for these the sweep
 # commands' parsers (and with them driver.sweep) are not built.
-OWN_COMMANDS = ("run", "scene-module", "study", "plot", "readme")
+OWN_COMMANDS = ("run", "scene-module", "plot")
+
+# The lab's commands: the studies and the docs' generated parts are not in the package
+# but beside it in a checkout (lab/, `python -m lab`), which imports the package by its
+# checkout name, driver. An installed package has no lab: these commands say so (exit 2).
+LAB_COMMANDS = {"study": "run a study: tables in results/, plots in plots/ (a checkout's lab/)",
+                "readme": "refill the generated tables of README.md and docs/*.md from results/*.csv and "
+                          "write docs/scenes.md and the flag rules from the schemas (a checkout's lab/)"}
+LAB = REPO / "lab"
 
 
 def cmd_run(args):
@@ -77,23 +89,6 @@ def cmd_scene_module(args):
     return 0
 
 
-def cmd_study(args):
-    from . import sweep
-    from .studies import study
-
-    unknown = [n for n in args.names if n not in STUDY_NAMES]
-    if unknown or not (args.names or args.group):
-        print(f"error: study: unknown study {unknown[0]!r} (python -m driver study --help lists them)" if unknown
-              else "error: study: name a study or a --group", file=sys.stderr)
-        return 2
-    names = [*(study_groups()[args.group] if args.group else []), *args.names]
-    sweep.configure(workers=args.workers, scheduler=args.scheduler)
-    for name in names:
-        with progress.study_bar(name):
-            study(name)()
-    return 0
-
-
 def cmd_plot(args):
     from .plot import plot_run
 
@@ -102,11 +97,36 @@ def cmd_plot(args):
     return 0
 
 
-def cmd_readme(args):
-    from .readme import update
+def lab_command(argv):
+    """study and readme: run by the checkout's lab. Under the package's checkout name
+    (python -m driver) in this process; under its installed name (the fdcontact command) the
+    lab, which imports it as driver, replaces this process (python -m lab), so that each
+    module is loaded once."""
+    command = first_command(argv)
+    if not (IN_CHECKOUT and (LAB / "studies" / "__init__.py").is_file()):
+        print(f"error: {command}: the studies and the docs' tables are a checkout's (lab/ beside driver/, "
+              f"python -m lab); this installed package has none", file=sys.stderr)
+        return 2
+    if __package__ != "driver":
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])))
+        try:
+            os.execve(sys.executable, [sys.executable, "-P", "-m", "lab", *argv], env)
+        except OSError as exc:
+            print(f"error: {command}: cannot start {sys.executable} -m lab: {exc.strerror or exc}", file=sys.stderr)
+            return 4
+    found = importlib.util.find_spec("lab")
+    if found is None or Path(found.origin).resolve() != (LAB / "__init__.py").resolve():
+        print(f"error: {command}: the module lab found first ({found.origin if found else 'none'}) is not the "
+              f"checkout's {LAB}", file=sys.stderr)
+        return 2
+    from lab.cli import main as lab_main
 
-    update()
-    return 0
+    return lab_main(argv, prog="python -m driver")
+
+
+def first_command(argv):
+    """The command word of a command line (its first word not starting with -)."""
+    return next((a for a in argv if not a.startswith("-")), None)
 
 
 def build_parser(argv=None):
@@ -129,17 +149,9 @@ def build_parser(argv=None):
     module.add_argument("scene", help="scene file (TOML)")
     module.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="as for run")
     module.set_defaults(func=cmd_scene_module)
-    study = sub.add_parser("study", help="run a study: tables in results/, plots in plots/")
-    study.add_argument("names", nargs="*", metavar="NAME",
-                       help=f"a study: {', '.join(sorted(STUDY_NAMES))}")
-    study.add_argument("--group", choices=sorted(study_groups()),
-                       help="the studies of a make target, in their order (driver/studies/__init__.py)")
-    study.add_argument("--workers", type=int, help="Dask worker processes for the studies that run their "
-                       "points as a sweep (fd2d-convergence, fd2d-gamma0; default: the number of cores)")
-    study.add_argument("--scheduler", help="send those points to an existing Dask scheduler tcp://HOST:PORT")
-    study.set_defaults(func=cmd_study)
-    command = next((a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")), None)
-    if command not in OWN_COMMANDS:
+    for name, text in LAB_COMMANDS.items():     # listed for --help; main hands them to the lab
+        sub.add_parser(name, help=text, add_help=False)
+    if first_command(sys.argv[1:] if argv is None else argv) not in OWN_COMMANDS:
         from .sweep import add_parser as add_sweep_parsers
 
         add_sweep_parsers(sub)
@@ -148,20 +160,26 @@ def build_parser(argv=None):
     plot.add_argument("--plane", help="3D: the cut plane AXIS=VALUE, e.g. y=0 (default: y through the contact)")
     plot.add_argument("--scale", type=float, default=1.0, help="displacement magnification (default 1)")
     plot.set_defaults(func=cmd_plot)
-    readme = sub.add_parser("readme", help="refill the generated tables of README.md and docs/*.md from "
-                                           "results/*.csv and write docs/scenes.md from the schemas")
-    readme.set_defaults(func=cmd_readme)
     return parser
 
 
 def main(argv=None):
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if first_command(argv) in LAB_COMMANDS:
+        return lab_command(argv)
     parser = build_parser(argv)
     args = parser.parse_args(argv)
     if hasattr(args, "set"):
         args.set = [item for chunk in args.set for item in split_overrides(chunk)]
+    return guarded(args.func, args)
+
+
+def guarded(func, args):
+    """func(args) as a command: a DriverError is one line and its exit code, SIGINT and
+    SIGTERM end it cleanly (128 + the signal), an OSError is exit 4."""
     previous = {sig: signal.signal(sig, raise_interrupted) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
-        return args.func(args)
+        return func(args)
     except DriverError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return exc.exit_code

@@ -1,7 +1,7 @@
 """Parameter sweeps on Dask distributed: expansion, hashing, submission, row store, progress.
 
 A sweep file (TOML) names a base scene and a grid of overrides; every point is one
-FreeFEM run (driver.studies.run_point) executed as one Dask task. By default the
+FreeFEM run (run_point) executed as one Dask task. By default the
 tasks run on a distributed.LocalCluster of one single-threaded worker process per
 core; --scheduler tcp://HOST:PORT sends them to an existing Dask cluster.
 
@@ -27,7 +27,7 @@ import contextlib
 import fcntl
 import functools
 import hashlib
-import importlib
+import importlib.util
 import itertools
 import json
 import math
@@ -52,9 +52,10 @@ RESULTS_DIR = REPO / "results"
 SWEEPS_DIR = REPO / "runs" / "sweeps"
 RETRY_ON_RESUME = {"KilledWorker", "TaskError"}     # infrastructure failures, not results
 DEFAULT_MAX_RETRIES = 2        # a point may take its worker down this many times, then KilledWorker
-# Sources whose change changes a run's result: their digest is part of every key.
+# Sources whose change changes a run's result or its row (this module's run_point and
+# scene_task): their digest is part of every key.
 CODE_MODULES = ("runner", "scene", "schema", "header", "materials", "fd2d", "fd3d", "foundation", "paraview",
-                "plugins", "studies.common")
+                "plugins", "sweep")
 
 SWEEP_KEYS = {"name", "scene", "set", "description"}
 DEBUG_KEYS = {"sleep_s", "crash_points"}
@@ -93,15 +94,14 @@ def file_digest(path):
 
 @functools.lru_cache(maxsize=None)
 def code_digest(extra=()):
-    """Digest of the FreeFEM sources, the plugins' sources and the driver modules that
-    shape a run (read once per process: the code does not change while a sweep is
-    being set up)."""
+    """Digest of the FreeFEM sources, the plugins' sources, the driver modules that
+    shape a run and `extra` (full module names: a study's task, task_point) (read once
+    per process: the code does not change while a sweep is being set up)."""
     digest = hashlib.sha256()
     files = [(path, path.relative_to(REPO)) for pattern in ("*.edp", "*.idp", "*.cpp", "*.hpp")
              for path in sorted((REPO / "freefem").rglob(pattern))]
-    for module in (*CODE_MODULES, *extra):
-        path = module_file(module)
-        files.append((path, path.relative_to(PACKAGE.parent)))
+    files += [(PACKAGE / f"{module}.py", f"{PACKAGE.name}/{module}.py") for module in CODE_MODULES]
+    files += [(module_file(module), module) for module in extra]
     for path, name in files:
         if path.is_file():
             digest.update(str(name).encode() + b"\0" + path.read_bytes())
@@ -109,9 +109,9 @@ def code_digest(extra=()):
 
 
 def module_file(module):
-    """The source of one of the package's modules ("studies.common", or a full dotted name)."""
-    name = module if module.startswith(__package__ + ".") else f"{__package__}.{module}"
-    return PACKAGE / (name.split(".", 1)[1].replace(".", "/") + ".py")
+    """The source file of an importable module, by its full dotted name (e.g. a lab study's,
+    which sits beside the package in the checkout)."""
+    return Path(importlib.util.find_spec(module).origin)
 
 
 def canonical_overrides(overrides):
@@ -307,10 +307,28 @@ def points_of(sweep, sweep_dir):
 # Tasks (run on the workers)
 
 
+def run_point(case, overrides, runs_dir=None):
+    """Run one scene with overrides; returns (row dict, results or None, run folder or None):
+    a run that fails (exit 3, 4) is a row with its status and message, a bad scene raises."""
+    from .runner import run_scene
+    from .scene import load_scene
+
+    scene, module = load_scene(case, overrides)
+    row = {"case": str(case), "overrides": " ".join(overrides)}
+    try:
+        results, folder, wall = run_scene(scene, module, runs_dir=runs_dir)
+    except SceneError:
+        raise
+    except DriverError as exc:
+        row.update(status=type(exc).__name__, message=str(exc).splitlines()[0])
+        return row, None, None
+    row.update(status="converged", message="", wall_s=wall,
+               newton_iterations=results["newton"]["iterations"], dofs=results["dofs"])
+    return row, results, folder
+
+
 def scene_task(scene_ref, overrides, runs_ref):
     """Run one scene with overrides; a row of the run's scalar results."""
-    from .studies.common import run_point
-
     scene = resolve(scene_ref)
     if not scene.is_file() or file_digest(scene) != scene_ref["sha256"]:
         raise RuntimeError(f"{socket.gethostname()}: the worker's {scene} is missing or differs "

@@ -205,7 +205,7 @@ def test_clamped_body_holds_its_exact_quadratic(run_scene, scene, nx, geometry, 
     curved-smooth); ball at nx = 8 8.0e-5 on the curved cells (its volume 1.8e-4 off),
     9.9e-2 on the P1 cut (volume -0.127) (results/curved_patch_3d.csv, python -m driver
     study fd3d-curved-smooth)."""
-    from driver.studies.curved import clamped_exact
+    from lab.studies.curved import clamped_exact
 
     exact = clamped_exact(REPO / scene)
     r = run_scene(scene, f"method.geometry={geometry}", f"mesh.nx={nx}").results

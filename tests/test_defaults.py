@@ -13,7 +13,7 @@ import subprocess
 
 import pytest
 
-from driver.readme import script_schema
+from lab.readme import script_schema
 from driver.scene import load_scene
 from driver.schema import schema_flags
 from tests.conftest import REPO

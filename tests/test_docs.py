@@ -3,7 +3,7 @@
 docs/scenes.md is written from the driver's schemas by `python -m driver readme`;
 it must be the text the schemas give today and name every key a scene may hold.
 Links between README.md and docs/ must resolve inside the repository. The studies'
-declarations (driver/studies/__init__.py) agree with the docs' table markers and the
+declarations (lab/studies/__init__.py) agree with the docs' table markers and the
 Makefile's targets.
 """
 
@@ -12,10 +12,10 @@ import re
 import pytest
 
 from conftest import run_cli
-from driver import readme
+from lab import readme
 from driver.runner import REPO
 from driver.scene import script_modules
-from driver.studies import OTHER_TABLES, groups as study_groups, tables
+from lab.studies import OTHER_TABLES, groups as study_groups, tables
 
 
 def test_scene_reference_is_current():
@@ -88,7 +88,8 @@ OUTSIDE = re.compile(r"DESIGN\.md|\.\./shared|\bissues? #?\d+|/issues/\d+")
 def test_nothing_points_outside_the_repository():
     """Documentation and code name only what is in the repository: no external design notes or issue numbers."""
     paths = [REPO / "README.md", REPO / "Makefile"]
-    for folder, pattern in (("docs", "*.md"), ("driver", "*.py"), ("tests", "*.py"), ("cases", "*"), ("freefem", "*")):
+    for folder, pattern in (("docs", "*.md"), ("driver", "*.py"), ("lab", "*.py"), ("tests", "*.py"), ("cases", "*"),
+                            ("freefem", "*")):
         paths += [p for p in (REPO / folder).rglob(pattern) if p.is_file() and "__pycache__" not in p.parts]
     for path in paths:
         for number, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
@@ -97,11 +98,12 @@ def test_nothing_points_outside_the_repository():
 
 
 def test_a_study_group_runs_its_studies_in_their_order(monkeypatch):
-    import driver.studies
+    """python -m driver study (the Makefile's command) hands the command line to the lab."""
+    import lab.studies
     from driver import cli
 
     ran = []
-    monkeypatch.setattr(driver.studies, "study", lambda name: lambda: ran.append(name))
+    monkeypatch.setattr(lab.studies, "study", lambda name: lambda: ran.append(name))
     assert cli.main(["study", "--group", "hertz-3d-study", "gates"]) == 0
     assert ran == ["hertz-3d-settings", "hertz-3d-coarse", "hertz-3d-recovery", "hertz-3d", "gates"]
 

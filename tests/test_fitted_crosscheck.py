@@ -5,7 +5,7 @@ import json
 import pytest
 
 from conftest import run_cli, run_freefem
-from driver.studies.fd2d import fitted_meshes
+from lab.studies.fd2d import fitted_meshes
 
 pytestmark = pytest.mark.freefem      # every test here starts FreeFEM (make test-fast leaves them out)
 

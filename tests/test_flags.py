@@ -15,7 +15,7 @@ import re
 
 import pytest
 
-from driver import readme
+from lab import readme
 from driver.scene import load_scene, script_modules
 from driver.errors import SceneError
 from driver.schema import flag_rule, flag_rules

@@ -153,7 +153,7 @@ def test_gamma_scaling_with_a_nitsche_bottom_line_is_rejected():
 
 @pytest.mark.freefem
 def test_newton_matrix_export_and_condition_estimate(tmp_path):
-    from driver.studies.hard_cases import condition_estimate
+    from lab.studies.hard_cases import condition_estimate
 
     r = converged(tmp_path / "run", "cases/disk_on_slab.toml", "mesh.nx=10", "method.degree=1",
                   "method.stabilization='ghost'", "output.export_matrix=true")

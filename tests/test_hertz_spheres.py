@@ -1,13 +1,13 @@
 """Hertz's sphere on sphere (cases/hertz_spheres.toml) on a coarser grading than shipped
 (grade_h 0.02 instead of 0.01: 38,508 DOFs, about 25 s): the contact radius, the
 recovered peak and profile, the active area, the recovered pressure's integral and the
-load against Hertz's solution (driver/studies/hertz3d.py computes them as the study
+load against Hertz's solution (lab/studies/hertz3d.py computes them as the study
 does), the under-resolution warning, and the 3D defaults' failure on the same mesh."""
 
 import pytest
 
 from conftest import driver_run
-from driver.studies import hertz3d
+from lab.studies import hertz3d
 
 pytestmark = pytest.mark.freefem
 

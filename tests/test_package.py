@@ -138,9 +138,11 @@ def test_results_say_where_they_came_from_and_in_what_units(tmp_path):
     assert bad.returncode == 2 and "scene.units.time" in bad.stderr
 
 
-def test_a_wheel_ships_the_scripts_the_plugins_sources_and_the_command(tmp_path):
-    # built from a copy of the checkout's tracked files: setuptools writes build/ and
-    # *.egg-info beside the sources it builds
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory):
+    """The wheel `pip wheel .` builds, from a copy of the checkout's tracked files
+    (setuptools writes build/ and *.egg-info beside the sources it builds)."""
+    tmp_path = tmp_path_factory.mktemp("wheel")
     files = subprocess.run(["git", "-C", str(REPO), "ls-files"], capture_output=True, text=True).stdout.split()
     source = tmp_path / "src"
     for name in files:
@@ -149,7 +151,10 @@ def test_a_wheel_ships_the_scripts_the_plugins_sources_and_the_command(tmp_path)
     proc = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q",
                            "-w", str(tmp_path), str(source)], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-2000:]
-    wheel = next(tmp_path.glob("fdcontact-*.whl"))
+    return next(tmp_path.glob("fdcontact-*.whl"))
+
+
+def test_a_wheel_ships_the_scripts_the_plugins_sources_and_the_command(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
     for name in ("fdcontact/api.py", "fdcontact/freefem/fd_contact_2d.edp", "fdcontact/freefem/fd_contact_3d.edp",
                  "fdcontact/freefem/lib/core/contact_law.idp", "fdcontact/freefem/plugins/contact_mumps.cpp",
@@ -158,6 +163,91 @@ def test_a_wheel_ships_the_scripts_the_plugins_sources_and_the_command(tmp_path)
         assert name in names, name
     entry = next(n for n in names if n.endswith("entry_points.txt"))
     assert "fdcontact = fdcontact.cli:main" in zipfile.ZipFile(wheel).read(entry).decode()
+
+
+def test_a_wheel_leaves_the_lab_out(wheel):
+    """The studies and the docs' generator stay in the checkout (lab/): the wheel has the
+    package's own modules, each a file of driver/, and nothing of lab/."""
+    names = zipfile.ZipFile(wheel).namelist()
+    modules = {n for n in names if n.endswith(".py") and n.count("/") == 1 and n.startswith("fdcontact/")}
+    assert modules == {f"fdcontact/{p.name}" for p in (REPO / "driver").glob("*.py")}
+    assert not [n for n in names if n.startswith("lab/") or "studies" in n or n.endswith("readme.py")]
+    assert {n.split("/")[0] for n in names} == {"fdcontact", wheel.name.split("-py")[0] + ".dist-info"}
+
+
+def test_an_installed_package_says_in_one_line_that_the_lab_is_not_there(wheel, tmp_path):
+    target = tmp_path / "site"
+    proc = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-index", "-q", "--target",
+                           str(target), str(wheel)], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    for command in (["study", "gates"], ["readme"]):
+        proc = subprocess.run([sys.executable, "-c", "import sys, fdcontact.cli; print(fdcontact.cli.__file__); "
+                               "sys.exit(fdcontact.cli.main(sys.argv[1:]))", *command],
+                              cwd=tmp_path, capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(target)))
+        assert proc.stdout.startswith(str(target / "fdcontact"))     # the installed copy, not the checkout's
+        assert proc.returncode == 2 and proc.stderr == (
+            f"error: {command[0]}: the studies and the docs' tables are a checkout's (lab/ beside driver/, "
+            "python -m lab); this installed package has none\n")
+
+
+IMPORT_EVERY_MODULE = """
+import importlib, pkgutil, sys
+import driver
+for module in pkgutil.iter_modules(driver.__path__):
+    importlib.import_module(f"driver.{module.name}")
+print(len(list(pkgutil.iter_modules(driver.__path__))), " ".join(m for m in sys.modules if m.split(".")[0] == "lab"))
+"""
+
+
+def test_the_package_does_not_import_the_lab():
+    """Importing every module of driver/ loads nothing of lab/; the one place that names the
+    lab is the study/readme hand-over in cli.py, inside a function (run only for those
+    commands)."""
+    proc = subprocess.run([sys.executable, "-c", IMPORT_EVERY_MODULE], cwd=REPO, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    count, *lab_modules = proc.stdout.split()
+    assert int(count) == len(list((REPO / "driver").glob("*.py"))) - 1 and lab_modules == []   # all but __init__
+    naming = {p.name: re.findall(r"^(\s*)(?:from|import) lab\b", p.read_text(), re.M)
+              for p in (REPO / "driver").glob("*.py")}
+    assert {name: found for name, found in naming.items() if found} == {"cli.py": ["    "]}
+
+
+def test_the_lab_runs_from_a_checkout_under_each_name_of_the_package(tmp_path):
+    """python -m lab and python -m driver (the checkout's names) run the lab in their own
+    process; the fdcontact command (the editable install's) hands it to python -m lab, so
+    the package is loaded once, as driver, and the lab's messages name that command."""
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    expected = "error: study: unknown study 'nosuch' ({} study --help lists them)\n"
+    for command, prog in (([sys.executable, "-m", "lab"], "python -m lab"),
+                          ([sys.executable, "-m", "driver"], "python -m driver")):
+        proc = subprocess.run([*command, "study", "nosuch"], cwd=tmp_path, capture_output=True, text=True, env=env)
+        assert proc.returncode == 2 and proc.stderr == expected.format(prog)
+    script = Path(sys.executable).parent / "fdcontact"
+    if not script.is_file():
+        pytest.skip(f"no fdcontact command beside {sys.executable} (make setup installs it)")
+    proc = subprocess.run([str(script), "study", "nosuch"], cwd=tmp_path, capture_output=True, text=True)
+    assert proc.returncode == 2 and proc.stderr == expected.format("python -m lab")
+
+
+def test_python_m_driver_runs_only_the_checkouts_lab(tmp_path):
+    """A module lab found before the checkout's (here: in the working folder) is refused."""
+    (tmp_path / "lab").mkdir()
+    (tmp_path / "lab" / "__init__.py").write_text("raise SystemExit('the wrong lab was imported')\n")
+    proc = subprocess.run([sys.executable, "-m", "driver", "readme"], cwd=tmp_path, capture_output=True, text=True,
+                          env=dict(os.environ, PYTHONPATH=str(REPO)))
+    assert proc.returncode == 2 and proc.stderr == (f"error: readme: the module lab found first "
+                                                    f"({tmp_path / 'lab' / '__init__.py'}) is not the checkout's "
+                                                    f"{REPO / 'lab'}\n")
+
+
+def test_a_study_tasks_sweep_key_covers_its_lab_module():
+    """A study's Dask task (lab.studies.fd2d:run_with_errors) is keyed by its module's source
+    too, found beside the package: a change to the study reruns its points."""
+    from driver import sweep
+
+    assert sweep.module_file("lab.studies.fd2d") == REPO / "lab" / "studies" / "fd2d.py"
+    assert sweep.code_digest(extra=("lab.studies.fd2d",)) not in (sweep.code_digest(),
+                                                                   sweep.code_digest(extra=("lab.studies.fd3d",)))
 
 
 @pytest.mark.freefem

@@ -7,7 +7,7 @@ import sys
 
 from driver import progress
 from driver.runner import REPO
-from driver.studies.common import progress as study_progress
+from lab.studies.common import progress as study_progress
 from driver.sweep import Progress
 
 

@@ -35,10 +35,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..errors import DriverError
-from ..runner import REPO, freefem_binary, freefem_env, parse_json_file
+from driver.errors import DriverError
+from driver.runner import REPO, freefem_binary, freefem_env, parse_json_file
+from driver.sweep import run_point
 from .fd2d import DISK, P1_GEOMETRY, QUIET, errors_against, reference
-from .common import loglog_slope, markdown_table, progress, RESULTS_DIR, run_point, save_figure
+from .common import loglog_slope, markdown_table, progress, RESULTS_DIR, save_figure
 
 PHASES = ("geometry", "assembly", "newton_contact_assembly", "newton_factor_solve", "estimators", "output")
 LADDER = (10, 20, 40, 80, 160)
@@ -911,8 +912,8 @@ GRADED_FLAGS = ("-grade_h", "-grade_radius", "-grade_slope", "-grade_x", "-grade
 def graded_reference_flags():
     """fd3d-study's reference mesh and Newton settings, as the driver's flags for its scene
     (driver.fd3d.freefem_args), restricted to those both versions read."""
-    from .. import fd3d as scenes3d
-    from ..scene import load_scene
+    from driver import fd3d as scenes3d
+    from driver.scene import load_scene
     from . import fd3d
 
     scene, _ = load_scene(fd3d.BALL, fd3d.reference_settings())
@@ -943,7 +944,7 @@ ERROR_TOOL_REPEATS = int(os.environ.get("BENCH_ERROR_TOOL_REPEATS", "2"))
 def error_tool_runs():
     """freefem/tools/fd_error_3d.edp of each version on the same P2 runs (current
     tree, saved) against the graded 3D reference (computed once if missing, about an
-    hour: driver/studies/fd3d.py), each version in turn within each repeat."""
+    hour: lab/studies/fd3d.py), each version in turn within each repeat."""
     from .fd3d import reference as fd3d_reference
 
     ref = fd3d_reference()

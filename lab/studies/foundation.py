@@ -9,11 +9,11 @@ from pathlib import Path
 
 import pandas as pd
 
-from ..errors import DriverError
-from ..runner import REPO, run_scene
-from ..scene import load_scene
-from .common import (cached_reference, loglog_slope, markdown_table, progress, RESULTS_DIR, run_point,
-                                   save_figure)
+from driver.errors import DriverError
+from driver.runner import REPO, run_scene
+from driver.scene import load_scene
+from driver.sweep import run_point
+from .common import cached_reference, loglog_slope, markdown_table, progress, RESULTS_DIR, save_figure
 
 
 def foundation_newton_table():

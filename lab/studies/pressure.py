@@ -16,8 +16,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..errors import DriverError
-from .common import markdown_table, progress, RESULTS_DIR, run_point, save_figure
+from driver.errors import DriverError
+from driver.sweep import run_point
+from .common import markdown_table, progress, RESULTS_DIR, save_figure
 from .fd2d import DISK, FITTED_H, REFERENCE_NX, errors_against, fitted_reference, reference
 
 TARGET_NX = 160
@@ -234,7 +235,7 @@ def percent(value):
 
 
 def recovery_table(table):
-    """The docs' table of results/pressure_recovery.csv (driver/readme.py)."""
+    """The docs' table of results/pressure_recovery.csv (lab/readme.py)."""
     rows = []
     for r in table.itertuples():
         fd = r.solution == "fictitious domain"
@@ -250,7 +251,7 @@ def recovery_table(table):
 
 
 def gamma0_table(table):
-    """The docs' table of results/pressure_gamma0.csv (driver/readme.py)."""
+    """The docs' table of results/pressure_gamma0.csv (lab/readme.py)."""
     rows = []
     for r in table.itertuples():
         rows.append({"gamma0": f"1/{1 / r.gamma0:.0f}" if r.gamma0 < 1 else f"{r.gamma0:g}",

@@ -1,34 +1,17 @@
-"""What every study shares: where tables and figures go, one run as a table row,
-cached references, log-log slopes and Markdown tables."""
+"""What every study shares: where tables and figures go, cached references, log-log
+slopes and Markdown tables (one run as a table row: driver.sweep.run_point)."""
 
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import DriverError, SceneError
-from ..progress import run_started, write
-from ..runner import REPO, run_freefem_tool, run_scene
-from ..scene import load_scene
+from driver.progress import run_started, write
+from driver.runner import REPO, run_freefem_tool, run_scene
+from driver.scene import load_scene
 
 RESULTS_DIR = REPO / "results"
 PLOTS_DIR = REPO / "plots"
-
-
-def run_point(case, overrides, runs_dir=None):
-    """Run one scene with overrides; returns (row dict, results or None, run folder or None)."""
-    scene, module = load_scene(case, overrides)
-    row = {"case": str(case), "overrides": " ".join(overrides)}
-    try:
-        results, folder, wall = run_scene(scene, module, runs_dir=runs_dir)
-    except SceneError:
-        raise
-    except DriverError as exc:
-        row.update(status=type(exc).__name__, message=str(exc).splitlines()[0])
-        return row, None, None
-    row.update(status="converged", message="", wall_s=wall,
-               newton_iterations=results["newton"]["iterations"], dofs=results["dofs"])
-    return row, results, folder
 
 
 def tool_errors(tool, ref, run_folder):

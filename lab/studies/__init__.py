@@ -3,7 +3,7 @@
 A study's record names its function, the make target that runs it (its group: `make
 GROUP` runs `python -m driver study --group GROUP`, the group's studies in the order
 listed here, then refills the docs) and the generated tables of README.md and docs/*.md
-it fills (`<!-- table:NAME -->`; driver/readme.py builds table NAME with its function
+it fills (`<!-- table:NAME -->`; lab/readme.py builds table NAME with its function
 NAME from the study's results/*.csv). Modules are imported only when one of their
 studies runs. tests/test_docs.py checks that every table has one marker and every
 group is a make target.
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 @dataclass(frozen=True)
 class Study:
     name: str           # python -m driver study NAME
-    module: str         # in driver.studies
+    module: str         # in lab.studies
     function: str       # says what it writes
     group: str          # the make target
     tables: tuple = ()  # the docs tables made from what it writes

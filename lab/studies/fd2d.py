@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..errors import DriverError
-from ..runner import REPO, run_command, run_freefem_tool
-from .common import (cached_reference, loglog_slope, markdown_table, progress, RESULTS_DIR, run_point,
-                                   save_figure, saved_reference, tool_errors)
-from ..sweep import file_digest, run_points, task_point
+from driver.errors import DriverError
+from driver.runner import REPO, run_command, run_freefem_tool
+from driver.sweep import file_digest, run_point, run_points, task_point
+from .common import (cached_reference, loglog_slope, markdown_table, progress, RESULTS_DIR, save_figure,
+                     saved_reference, tool_errors)
 
 DISK = REPO / "cases" / "disk_on_slab.toml"
 REFERENCE_NX = int(os.environ.get("FD2D_REFERENCE_NX", "320"))

@@ -8,8 +8,9 @@ import math
 import numpy as np
 import pandas as pd
 
-from ..errors import DriverError
-from .common import RESULTS_DIR, hertz_radius_and_modulus, progress, run_point, weighted_relative_l2
+from driver.errors import DriverError
+from driver.sweep import run_point
+from .common import RESULTS_DIR, hertz_radius_and_modulus, progress, weighted_relative_l2
 
 SCENES = ["cases/disk_on_slab.toml", "cases/disk_on_tilted_slab.toml", "cases/hertz_cylinders.toml",
           "cases/punch.toml", "cases/ellipse_on_arch.toml", "cases/ring_on_slab.toml", "cases/cam_on_slab.toml"]

@@ -13,9 +13,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from ..runner import REPO
-from ..scene import load_scene
-from .common import RESULTS_DIR, progress, run_point
+from driver.runner import REPO
+from driver.scene import load_scene
+from driver.sweep import run_point
+from .common import RESULTS_DIR, progress
 
 KEEP = ["solver.allow_implausible=true", "solver.allow_unbalanced=true"]
 

@@ -13,12 +13,12 @@ import os
 import numpy as np
 import pandas as pd
 
-from ..errors import DriverError, SceneError
-from .fd2d import rates_of
-from ..runner import REPO, parse_json_file, run_scene
-from ..scene import load_scene
+from driver.errors import DriverError, SceneError
+from driver.runner import REPO, parse_json_file, run_scene
+from driver.scene import load_scene
 from .common import (cached_reference, loglog_slope, markdown_table, progress, RESULTS_DIR, save_figure,
-                                   tool_errors)
+                     tool_errors)
+from .fd2d import rates_of
 
 BALL = REPO / "cases" / "ball_on_slab.toml"
 # The reference: P2, theta = -1, on cube(nx) refined by tetgen toward the contact

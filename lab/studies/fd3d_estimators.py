@@ -8,8 +8,9 @@ import os
 
 import pandas as pd
 
-from ..runner import REPO
-from .common import loglog_slope, markdown_table, progress, RESULTS_DIR, run_point, save_figure
+from driver.runner import REPO
+from driver.sweep import run_point
+from .common import loglog_slope, markdown_table, progress, RESULTS_DIR, save_figure
 
 BALL = REPO / "cases" / "ball_on_slab.toml"
 QUIET = ["output.vtu=false", "output.csv=false"]

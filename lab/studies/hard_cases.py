@@ -9,13 +9,14 @@ hard-conditioning -> results/hard_conditioning.csv, plots/conditioning.png
 
 import pandas as pd
 
-from ..errors import DriverError
-from ..runner import REPO
-from .common import markdown_table, progress, RESULTS_DIR, run_point, save_figure
+from driver.errors import DriverError
+from driver.runner import REPO
+from driver.sweep import run_point
+from .common import markdown_table, progress, RESULTS_DIR, save_figure
 
 HARD = REPO / "cases" / "hard"
 # Measured on the P1 cut geometry (results/hard_*.csv), which the study pins with a
-# P1 reference until it is rerun on the curved one (driver/studies/fd2d.py).
+# P1 reference until it is rerun on the curved one (lab/studies/fd2d.py).
 QUIET = ["output.vtu=false", "output.pressure_csv=false", "method.geometry=p1"]
 STABILIZATIONS = ("none", "neighbour", "ghost")
 HARD_REFERENCE_NX = 160

@@ -21,9 +21,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..errors import DriverError
-from ..runner import REPO, run_freefem_tool
-from .common import RESULTS_DIR, hertz_radius_and_modulus, markdown_table, progress, run_point, weighted_relative_l2
+from driver.errors import DriverError
+from driver.runner import REPO, run_freefem_tool
+from driver.sweep import run_point
+from .common import RESULTS_DIR, hertz_radius_and_modulus, markdown_table, progress, weighted_relative_l2
 
 SPHERES = REPO / "cases" / "hertz_spheres.toml"
 # the scene's data (cases/hertz_spheres.toml states them)

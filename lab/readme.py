@@ -4,7 +4,7 @@ Study tables: in README.md and docs/*.md a generated block sits between
 `<!-- table:NAME -->` and `<!-- end:NAME -->`; everything between the markers is
 replaced from results/*.csv, nothing else is touched. A table whose CSV is
 missing is left as it is (and reported). The study that writes the CSV declares the
-table (driver/studies/__init__.py); this module's function NAME builds it.
+table (lab/studies/__init__.py); this module's function NAME builds it.
 
 Scene reference: docs/scenes.md is written whole from the schemas of the driver
 (one table per FreeFEM script), so that it cannot disagree with what the driver
@@ -22,8 +22,8 @@ import re
 import numpy as np
 import pandas as pd
 
-from .runner import REPO
-from .schema import REQUIRED, TableList, flag_rules
+from driver.runner import REPO
+from driver.schema import REQUIRED, TableList, flag_rules
 from .studies import tables
 from .studies.common import markdown_table
 
@@ -181,7 +181,7 @@ def machine_stamp(t):
 
 
 def stamped_bench_table(name, table_function):
-    """A make-bench table made from results/NAME.csv by a table function of driver.studies.bench,
+    """A make-bench table made from results/NAME.csv by a table function of lab.studies.bench,
     with its machine stamp."""
     from .studies import bench
 
@@ -218,7 +218,7 @@ def bench_ordering():
 
 
 def bench_scale_table(name, table_function):
-    """A table of the bench-scale study (driver/studies/bench_scale.py), stamped with its machine."""
+    """A table of the bench-scale study (lab/studies/bench_scale.py), stamped with its machine."""
     from .studies import bench_scale
 
     t = pd.read_csv(RESULTS / f"{name}.csv")
@@ -581,7 +581,7 @@ def curved_smooth_3d():
 
 def table_builder(name):
     """The function of this module that builds docs table `name` (a study declares the
-    tables it fills: driver/studies/__init__.py); KeyError when there is none."""
+    tables it fills: lab/studies/__init__.py); KeyError when there is none."""
     make = globals().get(name)
     if not (inspect.isfunction(make) and make.__module__ == __name__):
         raise KeyError(f"table {name}: no function {name} in {__name__}")
@@ -711,14 +711,14 @@ def schema_rows(schema, prefix=""):
 
 
 def script_schema(module):
-    from .scene import full_schema
+    from driver.scene import full_schema
 
     return full_schema(module)
 
 
 def scene_reference():
     """The text of docs/scenes.md."""
-    from .scene import script_modules
+    from driver.scene import script_modules
 
     modules = script_modules()
     parts = [INTRO]
@@ -765,7 +765,7 @@ SUPPORTS_TEXT = """## Supports, loads, probes
 
 
 def shapes_reference():
-    from .geometry import SHAPE_DOCS
+    from driver.geometry import SHAPE_DOCS
 
     lines = [SHAPES_INTRO, "| type | dimension | keys | level set |", "|---|---|---|---|"]
     for name, (dims, keys, meaning) in SHAPE_DOCS.items():
@@ -784,7 +784,7 @@ def flag_rules_path(script):
 
 def flag_rules_module(script):
     """The text of the script's flag_rules.idp: one argRule call per flag its schema declares."""
-    from .scene import script_modules
+    from driver.scene import script_modules
 
     module = script_modules()[script]
     source = module.__name__.replace(".", "/") + ".py"

@@ -12,12 +12,12 @@ import tomllib
 import numpy as np
 import pandas as pd
 
-from ..errors import DriverError
-from ..runner import REPO, TOOLS_DIR, freefem_binary, parse_json_file, run_command
-from .common import RESULTS_DIR, loglog_slope, progress, run_point, save_figure, saved_reference, tool_errors
+from driver.errors import DriverError
+from driver.runner import REPO, TOOLS_DIR, freefem_binary, parse_json_file, run_command
+from driver.sweep import run_point, run_points, scene_point
+from .common import RESULTS_DIR, loglog_slope, progress, save_figure, saved_reference, tool_errors
 from .fd2d import DISK, QUIET, REFERENCE_NX, adaptive_rows, reference, run_with_errors
 from .fd3d import QUIET as QUIET_3D
-from ..sweep import run_points, scene_point
 
 GEOMETRIES = ("p1", "curved")
 LADDER = (40, 80, 160)

@@ -26,10 +26,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..errors import DriverError
-from ..runner import REPO, freefem_binary, freefem_env, parse_json_file
+from driver.errors import DriverError
+from driver.runner import REPO, freefem_binary, freefem_env, parse_json_file
 from .bench import (load_average, machine, save_results, stamped, timed_run, user_environment,
-                                  versions_to_time)
+                     versions_to_time)
 from .common import markdown_table, progress
 
 SCALE_BASELINE = "d58614e"   # the version the large-run targets are set against
