@@ -280,6 +280,8 @@ def test_mesh_nx_counts_elements_across_the_box_in_every_script(tmp_path):
             for name, scene in (("m", REPO / "cases" / "square_slip_separation.toml"), ("mm", tmp_path / "mm.toml"))}
     assert runs["mm"]["elements"] == runs["m"]["elements"] == 2 * 8 * 8
     assert runs["mm"]["contact"]["max_pressure"] == pytest.approx(runs["m"]["contact"]["max_pressure"], rel=1e-9)
+    # displacements x 1000 over an area x 1e6: the L2 norm of u (sqrt of int |u|^2) x 1e6
+    assert runs["mm"]["norms"]["l2"] == pytest.approx(1e6 * runs["m"]["norms"]["l2"], rel=1e-8)
 
 
 @pytest.mark.freefem
