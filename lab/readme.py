@@ -180,13 +180,14 @@ def machine_stamp(t):
     return f"\n\nMachine: {t.machine.iloc[0]}; load average (1 min) {t.load_1min.iloc[0]} over the runs."
 
 
-def stamped_bench_table(name, table_function):
-    """A make-bench table made from results/NAME.csv by a table function of lab.studies.bench,
-    with its machine stamp."""
-    from .studies import bench
+def stamped_bench_table(name, table_function, module="bench"):
+    """A make-bench table made from results/NAME.csv by a table function of
+    lab.studies.MODULE (bench or bench_scale), with its machine stamp."""
+    import importlib
 
+    study = importlib.import_module(f".studies.{module}", __package__)
     t = pd.read_csv(RESULTS / f"{name}.csv")
-    return markdown_table(getattr(bench, table_function)(t), digits=3) + machine_stamp(t)
+    return markdown_table(getattr(study, table_function)(t), digits=3) + machine_stamp(t)
 
 
 def bench_overhead():
@@ -217,28 +218,20 @@ def bench_ordering():
     return stamped_bench_table("bench_ordering", "ordering_table")
 
 
-def bench_scale_table(name, table_function):
-    """A table of the bench-scale study (lab/studies/bench_scale.py), stamped with its machine."""
-    from .studies import bench_scale
-
-    t = pd.read_csv(RESULTS / f"{name}.csv")
-    return markdown_table(getattr(bench_scale, table_function)(t), digits=3) + machine_stamp(t)
-
-
 def bench_scale():
-    return bench_scale_table("bench_scale", "scale_table")
+    return stamped_bench_table("bench_scale", "scale_table", "bench_scale")
 
 
 def bench_scale_targets():
-    return bench_scale_table("bench_scale_targets", "scale_targets_table")
+    return stamped_bench_table("bench_scale_targets", "scale_targets_table", "bench_scale")
 
 
 def bench_scale_mpi():
-    return bench_scale_table("bench_scale_mpi", "scale_mpi_table")
+    return stamped_bench_table("bench_scale_mpi", "scale_mpi_table", "bench_scale")
 
 
 def bench_scale_large():
-    return bench_scale_table("bench_scale_large", "scale_large_table")
+    return stamped_bench_table("bench_scale_large", "scale_large_table", "bench_scale")
 
 
 def bench_scale_model():

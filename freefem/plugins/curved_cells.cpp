@@ -35,12 +35,13 @@
 //   the 3D cells of fd3d/curved.idp curvedCutCells3: phiV the P1 level set's vertex
 //       values (off zero), band per element (1 where |phiV| is within about h_K of
 //       the surface);
-//   rules: nV, nR, nG, depthMax, then the volume's triangle rule (a, b, w: fd3d/levelset.idp
-//       lsTriangleRule), the Gauss rule in r on [0, 1] (t, w), the interface's
-//       triangle rule (a, b, w);
+//   rules: nV, nR, nG (at most 64 points each), depthMax (at most 6), then the volume's
+//       triangle rule (a, b, w: fd3d/levelset.idp lsTriangleRule), the Gauss rule in r
+//       on [0, 1] (t, w), the interface's triangle rule (a, b, w);
 //   cutK: in, the element of every P1 interface triangle; out, the cells (those
 //       elements once each, then the band elements with an edge whose midpoint has
-//       the other sign);
+//       the other sign, then those the surface enters without a vertex or a midpoint
+//       inside: the lowest value of the level set in the element is negative);
 //   ratio, inBody: per element of Th; set for the cells;
 //   volume resized to 5 n: x, y, z, weights, elements; interface to 6 n: x, y, z,
 //       weights, elements (of the point), positions of the point's cell in cutK;
@@ -93,6 +94,10 @@
 namespace {
 
 const int kDepthMax = 2;   // a failing cell is split into four, twice at most
+// The 3D rules a script may ask for: points per rule and splitting depth (a cell splits
+// into 8^depth sub-cells at most; the shipped scripts use 6 and 1).
+const int kRulePointsMax = 64;
+const int kDepthMax3 = 6;
 const double kCrossingShiftMax = 0.25;   // of an edge: exact against P1 crossing, beyond it a cell fails
 // The volume rule's area against the boundary's, relative to the (sub)cell: beyond
 // it the s rule is applied on panels, halved until each agrees with its halves to
@@ -522,9 +527,9 @@ class CurvedCellRules : public LevelSetFunction<CurvedCellRules, Reals, Reals, R
 };
 
 // ---- The 3D curved cut cells (fd3d/curved.idp, which describes the construction).
-// The arithmetic is the script's former interpreted one (fd3d/levelset.idp lsDet3,
-// lsGradient3; fd3d/curved.idp), operation for operation, so the points and weights
-// are those of the interpreted construction to the bit.
+// The arithmetic of the maps is the script's (fd3d/levelset.idp lsDet3, lsGradient3),
+// written the same way; the volume-rule check and the cells found by the lowest value
+// of the level set are the plugin's own (docs/curved-geometry.md).
 
 // 6 x the signed volume of the tetrahedron (a, b, c, d) (fd3d/levelset.idp lsDet3).
 inline double tetDet(double ax, double ay, double az, double bx, double by, double bz, double cx, double cy,
@@ -556,8 +561,10 @@ struct Rules3 {
 
     bool read(const KN<double> &all) {
         if (all.N() < 4) return false;
+        for (int j = 0; j < 4; j++)   // rule sizes and a splitting depth a script can mean
+            if (!(all[j] >= 0 && all[j] <= (j == 3 ? kDepthMax3 : kRulePointsMax))) return false;
         nV = lround(all[0]); nR = lround(all[1]); nG = lround(all[2]); depthMax = lround(all[3]);
-        if (std::min(nV, std::min(nR, nG)) < 1 || depthMax < 0 || all.N() != 4 + 3 * nV + 2 * nR + 3 * nG)
+        if (std::min(nV, std::min(nR, nG)) < 1 || all.N() != 4L + 3L * nV + 2L * nR + 3L * nG)
             return false;
         const double *at = &all[0] + 4;
         va = at; vb = (at += nV); vw = (at += nV); tr = (at += nV); wr = (at += nR);
@@ -993,6 +1000,10 @@ double cutCell3(const LevelSet &phi, const Mesh3 &Th, const Rules3 &q, const KN<
             }
         }
         if (done) continue;
+        if (c.depth >= depthMax) {   // deepest level and both passes failed: a flat sub-cell (no volume)
+            counts.fallbacks++;
+            continue;
+        }
         for (int ch = 0; ch < 8; ch++) {   // split into eight; the values at the midpoints are known
             Sub s;
             for (int j = 0; j < 4; j++) {
@@ -1029,7 +1040,7 @@ class CurvedCellRules3
             || inBody.N() != Th.nt)
             return -1L;
         for (long s = 0; s < cutK.N(); s++)
-            if (!(cutK[s] >= 0 && cutK[s] < Th.nt)) return -1L;
+            if (!(cutK[s] >= 0 && lround(cutK[s]) < Th.nt)) return -1L;
         // the cut elements once each, then the band elements with an edge whose midpoint
         // has the other sign
         std::vector<char> marked(Th.nt, 0);
@@ -1070,7 +1081,7 @@ class CurvedCellRules3
             size_t nv0 = vol.size();
             double volK = cutCell3(levelSet, Th, q, phiV, k, c, q.depthMax, vol, itf, counts);
             double inside = vol.sum(3, nv0);
-            ratio[k] = std::min(inside / volK, 1.);
+            ratio[k] = (volK > 0) ? std::min(inside / volK, 1.) : 0.;
             inBody[k] = (inside > 0);
         }
         vol.copyTo(volumeOut);
