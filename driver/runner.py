@@ -35,11 +35,13 @@ TOOLS_DIR = FREEFEM_DIR / "tools"     # error measures and cross-checks (run_fre
 FREEFEM_PLUGIN_DIR = "/usr/lib/freefem++"   # FreeFEM's own plugins (Debian's libfreefem++)
 
 
-# What the driver sets in FreeFEM's environment: Debian's binary looks for its plugins in
-# the wrong folder; one BLAS thread, as FreeFEM phases are timed with CPU clock() (see
-# freefem/lib/core/results.idp).
-FREEFEM_ENV = {"FF_LOADPATH": FREEFEM_PLUGIN_DIR, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
-               "MKL_NUM_THREADS": "1"}
+# What the driver sets in FreeFEM's environment: the load path (";" between folders) of
+# Debian's plugins, which its binary looks for in the wrong folder, and of the package's
+# own (FreeFem++-mpi takes their mpi/ builds), wherever the package is installed: a
+# checkout's freefem++.pref says the same, an installed package has none; one BLAS
+# thread, as FreeFEM phases are timed with CPU clock() (see freefem/lib/core/results.idp).
+FREEFEM_ENV = {"FF_LOADPATH": f"{FREEFEM_PLUGIN_DIR};{FREEFEM_DIR / 'plugins'}", "OMP_NUM_THREADS": "1",
+               "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
 def freefem_env(mpi=False):

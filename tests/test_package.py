@@ -190,6 +190,29 @@ def test_an_installed_package_says_in_one_line_that_the_lab_is_not_there(wheel, 
             "python -m lab); this installed package has none\n")
 
 
+
+@pytest.mark.freefem
+def test_an_installed_package_runs_a_scene_from_another_folder(wheel, tmp_path):
+    """The installed copy (no checkout, no freefem++.pref beside it) finds its own plugins:
+    a run from an unrelated folder converges. The plugins are the checkout's, copied as a
+    first run would have built them."""
+    target = tmp_path / "site"
+    proc = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-index", "-q", "--target",
+                           str(target), str(wheel)], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    plugins = target / "fdcontact" / "freefem" / "plugins"
+    for built in (REPO / "freefem" / "plugins").glob("*.so"):
+        shutil.copy2(built, plugins / built.name)
+        (plugins / built.name).touch()
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    proc = subprocess.run([sys.executable, "-m", "fdcontact", "run", str(REPO / "cases" / "disk_on_slab.toml"),
+                           "--out", "r", "--set", "mesh.nx=12", "--set", "output.vtu=false"],
+                          cwd=elsewhere, capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(target)))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    results = json.loads((elsewhere / "r" / "results.json").read_text())
+    assert results["status"] == "converged" and results["newton"]["converged_by"] in ("tolerance", "roundoff_floor")
+
 IMPORT_EVERY_MODULE = """
 import importlib, pkgutil, sys
 import driver
