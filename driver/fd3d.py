@@ -89,9 +89,10 @@ SCHEMA = {
     "method": dict(two_body_method_schema(1), **{
         "geometry": Field("str", flag="geometry", default="p1", choices=("p1", "curved"),
                           doc="cut geometry: curved integrates on the exact level set of the shapes "
-                              "(docs/curved-geometry.md; the 3D default stays p1 until the 3D curved cells are "
-                              "compiled and checked cell by cell, docs/hertz-3d.md); p1 on the P1 interpolant of "
-                              "each level set (polyhedra, volume error O(h^2))"),
+                              "(docs/curved-geometry.md: compiled cells, each volume rule checked; the load is "
+                              "then the exact volume's, docs/hertz-3d.md); p1 on the P1 interpolant of each level "
+                              "set (polyhedra, volume error O(h^2)), the 3D default the 3D study tables were "
+                              "measured with"),
         "stabilization": Field("str", flag="stabilization", default="auto", choices=STABILIZATIONS,
                                doc="auto: neighbour for theta > 0 (coercivity on cut elements), none otherwise"),
         "gamma_scaling": Field("str", flag="gamma_scaling", default="shear", choices=("shear", "none"),
