@@ -176,6 +176,22 @@ def test_3d_curved_ball_volume_on_uniform_and_graded_meshes(run_scene, grading, 
     assert force == pytest.approx(0.1 * v["body1_exact"], rel=1e-7)
 
 
+
+def test_3d_curved_ball_volume_on_estimator_adapted_meshes(run_scene):
+    # python -m driver run cases/ball_on_slab.toml --set method.geometry=curved --set mesh.nx=8
+    #     --set adapt.steps=2: three meshes (1,032, 3,342, 7,314 DOFs), tetgen-refined by the
+    #     estimators; the ball's curved volume on each against 4/3 pi 0.25^3, and the last
+    #     step's contact force against the exact volume's load.
+    run = run_scene("cases/ball_on_slab.toml", "method.geometry=curved", "mesh.nx=8", "adapt.steps=2",
+                    "output.vtu=false")
+    exact = run.results["measures"]["body1_exact"]
+    steps = run.results["steps"]
+    assert len(steps["dofs"]) == 3 and steps["dofs"][0] < steps["dofs"][1] < steps["dofs"][2]
+    errors = [abs(m - exact) / exact for m in steps["measure_body1"]]
+    assert max(errors) < 1e-7          # measured 4.2e-8, 3.2e-8, 3.7e-8
+    force = run.results["contact"]["force_on_body1"][2]
+    assert force == pytest.approx(0.1 * exact, rel=3e-8)      # measured 8.6e-9
+
 def sphere_section_area():
     """The part of the box side x = -0.5 inside the lower ball of sphere_on_sphere (centre
     (0, 0, -0.75), R = 0.75) and above the box bottom z = -0.5: for |y| < 0.5, z from -0.5
