@@ -22,15 +22,13 @@ from .header import LIMITS, SCENE_HEADER, check_units
 from .schema import validate
 
 
-class FrozenTable(dict):
-    """A table of a checked scene: a dict that refuses changes (so that it still reads,
-    prints and serializes as one)."""
+class ReadOnly:
+    """What a checked scene's tables and arrays share: changes refused, copies are the
+    object itself (nothing can change it), pickled as the plain value."""
 
     def refuse(self, *args, **kwargs):
         raise TypeError("a checked scene is read-only (fdcontact.Scene.set makes a changed scene)")
 
-    __setitem__ = __delitem__ = __ior__ = clear = pop = popitem = setdefault = update = refuse
-
     def __copy__(self):
         return self
 
@@ -38,24 +36,23 @@ class FrozenTable(dict):
         return self
 
     def __reduce__(self):
-        return FrozenTable, (dict(self),)
+        return type(self), (self.plain(self),)
 
 
-class FrozenList(list):
+class FrozenTable(ReadOnly, dict):
+    """A table of a checked scene: a dict that refuses changes (so that it still reads,
+    prints and serializes as one)."""
+
+    plain = dict
+    __setitem__ = __delitem__ = __ior__ = clear = pop = popitem = setdefault = update = ReadOnly.refuse
+
+
+class FrozenList(ReadOnly, list):
     """An array of a checked scene: a list that refuses changes."""
 
-    refuse = FrozenTable.refuse
+    plain = list
     __setitem__ = __delitem__ = __iadd__ = __imul__ = append = clear = extend = insert = pop = remove = \
-        reverse = sort = refuse
-
-    def __copy__(self):
-        return self
-
-    def __deepcopy__(self, memo):
-        return self
-
-    def __reduce__(self):
-        return FrozenList, (list(self),)
+        reverse = sort = ReadOnly.refuse
 
 
 def frozen(value):
