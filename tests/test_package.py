@@ -336,6 +336,12 @@ def test_paraview_sees_both_bodies_and_the_plots_stress(tmp_path):
                       ("2", "0", "body1.vtu"), ("2", "1", "body2.vtu")]    # every adaptation step
     dofs = [meshio.read(out / f"steps/body1_{k}.vtu").points.shape[0] for k in (0, 1)]
     assert dofs[0] < dofs[1] < meshio.read(out / "body1.vtu").points.shape[0]   # refined step by step
+    for k in (0, 1):   # each step's own contact pressure, raw and recovered (element means)
+        cells = meshio.read(out / f"steps/body1_{k}.vtu").cell_data
+        raw, rec = (np.concatenate([np.asarray(c).reshape(-1) for c in cells[key]])
+                    for key in ("contact_pressure", "contact_pressure_recovered"))
+        assert raw.max() == pytest.approx(r["contact"]["max_pressure"], rel=0.1)   # measured 3 %, 2 %
+        assert (rec > 0).sum() >= (raw > 0).sum() > 10 and rec.max() > 0.4 * raw.max()   # 0.50, 0.96
     for name in ("body1", "body2", "steps/body1_0", "steps/body2_1"):
         mesh = meshio.read(out / f"{name}.vtu")
         vm, inside = (np.asarray(mesh.point_data[k]).reshape(-1) for k in ("von_mises", "von_mises_inside"))
