@@ -163,3 +163,39 @@ def test_the_include_check_sees_a_missing_include():
     text = "IFMACRO(!probeIncluded)\nmacro probeIncluded()1\n{}macro probe() fdBodyMesh(Th, inBody1, Th1) //\nENDIFMACRO\n"
     assert missing_includes(probe, defined, text.format("")) == ["lib/fd2d/spaces.idp"]
     assert missing_includes(probe, defined, text.format('include "freefem/lib/fd2d/spaces.idp"\n')) == []
+
+
+def one_dimension_calls(path, defined, source=None):
+    """The names a shared core module (source: its text, or the file's) uses that a
+    dimension folder defines but not both fd2d/ and fd3d/ (nor core/): a call that
+    would make the module written once work in one dimension only."""
+    source = path.read_text() if source is None else source
+    text = re.sub(r"//[^\n]*", "", re.sub(r"/\*.*?\*/", " ", source, flags=re.S))
+    text = re.sub(r'"[^"\n]*"', '""', text)
+    own = set(re.findall(r"^\s*macro\s+(\w+)", text, re.M))
+    found = []
+    for name in sorted(set(re.findall(r"\b[A-Za-z_]\w*\b", text)) - own):
+        families = {family(q) for q in defined.get(name, ()) if q != path}
+        if families and "core" not in families and not {"fd2d", "fd3d"} <= families:
+            found.append(name)
+    return found
+
+
+def test_the_shared_core_calls_only_what_both_dimensions_define():
+    """A core module written once reaches the dimension through hooks both define
+    (fdEachAxis, fdDot, fdJsonCutOwn, ..), never through one dimension's macro."""
+    defined = definitions()
+    calls = {str(p.relative_to(FREEFEM)): one_dimension_calls(p, defined)
+             for p in LIBRARY if family(p) == "core"}
+    assert {k: v for k, v in calls.items() if v} == {}
+
+
+def test_the_hook_check_sees_a_one_dimension_call():
+    """A core module calling the 2D-only nitscheKeepPoints is reported; calling the hook
+    fdEachAxis, which both dimension.idp define, is not."""
+    defined = definitions()
+    probe = FREEFEM / "lib" / "core" / "probe.idp"   # a path for its folder; never written
+    text = "IFMACRO(!probeIncluded)\nmacro probeIncluded()1\nmacro probe(p) {} //\nENDIFMACRO\n"
+    assert one_dimension_calls(probe, defined, text.format("nitscheKeepPoints(a, b, c, d, e, f, g, h, i)")) \
+        == ["nitscheKeepPoints"]
+    assert one_dimension_calls(probe, defined, text.format("fdEachAxis(M, p)")) == []
