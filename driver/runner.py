@@ -97,9 +97,9 @@ def provenance(command, commit):
 
 class AfterRunPrefetch(threading.Thread):
     """What a run needs once FreeFEM has finished, fetched while it runs on another core:
-    the provenance's git and package queries (subprocesses) and the ParaView step's
-    imports (numpy, meshio), tens of milliseconds each that a short run would otherwise
-    wait for. Failures are left for the main thread to meet again and report."""
+    the provenance's git and package queries (subprocesses), milliseconds each that a short
+    run would otherwise wait for. Failures are left for the main thread to meet again and
+    report."""
 
     def __init__(self):
         super().__init__(daemon=True)
@@ -110,8 +110,6 @@ class AfterRunPrefetch(threading.Thread):
         try:
             self.commit = git_commit()
             installed_versions()
-            import meshio  # noqa: F401  (paraview.add_inside_stress)
-            from . import paraview  # noqa: F401
         except Exception:
             pass
 
