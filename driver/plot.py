@@ -30,10 +30,33 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DriverError
-from .paraview import inside_extension
 
 FIGURE_DPI = 130
 PRESSURE_LABEL = "contact pressure (positive in compression)"
+
+
+def inside_extension(cells, values, phi):
+    """values with those at the vertices outside {phi < 0} that share an edge with an inside
+    vertex replaced by the mean of those inside vertices' values (each counted once per cell
+    holding the edge). A stress at a vertex outside a body is its field extended from a cut
+    element, possibly a tiny cut: not the body's. The body files' von_mises_inside is this
+    rule repeated ring after ring outward (freefem/plugins/inside_extension.cpp)."""
+    out = np.array(values, dtype=float)
+    known = phi < 0
+    corners = cells.shape[1]
+    total = np.zeros(len(out))
+    count = np.zeros(len(out))
+    for i in range(corners):
+        for j in range(corners):
+            if i == j:
+                continue
+            p, q = cells[:, i], cells[:, j]
+            sel = ~known[p] & known[q]
+            np.add.at(total, p[sel], out[q[sel]])
+            np.add.at(count, p[sel], 1.0)
+    fill = count > 0
+    out[fill] = total[fill] / count[fill]
+    return out
 
 
 class RunFolderError(DriverError):

@@ -7,7 +7,6 @@ failure.json and the log, never results.json). See check_output_folder for what
 an --out may be.
 """
 
-import ctypes
 import datetime
 import fcntl
 import functools
@@ -18,9 +17,7 @@ import re
 import resource
 import shutil
 import signal
-import secrets
 import shlex
-import socket
 import subprocess
 import threading
 import time
@@ -61,16 +58,34 @@ def rerun_text(command):
 
 @functools.lru_cache(maxsize=None)
 def installed_versions():
-    """FreeFEM's and MUMPS's versions: Debian's package versions (dpkg-query), else unknown."""
+    """FreeFEM's and MUMPS's versions: Debian's package versions, else unknown."""
+    try:
+        status = (Path(os.environ.get("DPKG_ADMINDIR", "/var/lib/dpkg")) / "status").read_text(errors="replace")
+    except OSError:
+        status = ""
+    return {key: package_version(status, package) for key, package in (("freefem", "freefem++"),
+                                                                        ("mumps", "libmumps-seq-dev"))}
+
+
+def package_version(status, package):
+    """What `dpkg-query -W -f '${Version}' PACKAGE` prints (None for nothing), read from dpkg's
+    status file when it holds one installed instance of the package (the common case: no
+    process to start), else from dpkg-query itself."""
+    text, key, found = "\n" + status, f"\nPackage: {package}\n", []
+    start = text.find(key)
+    while start >= 0:         # each paragraph of the package: its lines up to a blank one
+        end = text.find("\n\n", start + 1)
+        fields = text[start + 1:end if end >= 0 else None].splitlines()
+        if "Status: install ok installed" in fields:
+            found += [line[len("Version: "):] for line in fields if line.startswith("Version: ")]
+        start = text.find(key, start + 1)
+    if len(found) == 1:
+        return found[0].strip() or None
     query = shutil.which("dpkg-query")
-    out = {}
-    for key, package in (("freefem", "freefem++"), ("mumps", "libmumps-seq-dev")):
-        version = None
-        if query:
-            proc = subprocess.run([query, "-W", "-f", "${Version}", package], capture_output=True, text=True)
-            version = proc.stdout.strip() if proc.returncode == 0 and proc.stdout.strip() else None
-        out[key] = version
-    return out
+    if query is None:
+        return None
+    proc = subprocess.run([query, "-W", "-f", "${Version}", package], capture_output=True, text=True)
+    return proc.stdout.strip() if proc.returncode == 0 and proc.stdout.strip() else None
 
 
 def git_commit():
@@ -92,14 +107,14 @@ def provenance(command, commit):
 
     return {"package": "fdcontact", "version": __version__, "git_commit": commit, **installed_versions(),
             "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-            "host": socket.gethostname(), "command": shlex.join(command)}
+            "host": os.uname().nodename, "command": shlex.join(command)}
 
 
 class AfterRunPrefetch(threading.Thread):
     """What a run needs once FreeFEM has finished, fetched while it runs on another core:
-    the provenance's git and package queries (subprocesses) and the ParaView step's
-    imports (numpy, meshio), tens of milliseconds each that a short run would otherwise
-    wait for. Failures are left for the main thread to meet again and report."""
+    the provenance's git queries (subprocesses) and package versions, milliseconds that a
+    short run would otherwise wait for. Failures are left for the main thread to meet again
+    and report."""
 
     def __init__(self):
         super().__init__(daemon=True)
@@ -110,8 +125,6 @@ class AfterRunPrefetch(threading.Thread):
         try:
             self.commit = git_commit()
             installed_versions()
-            import meshio  # noqa: F401  (paraview.add_inside_stress)
-            from . import paraview  # noqa: F401
         except Exception:
             pass
 
@@ -314,7 +327,7 @@ def claim_staging(staging, final):
     lock's descriptor (FreeFEM inherits it, so the lock lives as long as either process)."""
     staging.parent.mkdir(parents=True, exist_ok=True)
     for _ in range(2):
-        claim = staging.parent / f".{final.name[:40]}.claim-{os.getpid()}-{secrets.token_hex(4)}"
+        claim = staging.parent / f".{final.name[:40]}.claim-{os.getpid()}-{os.urandom(4).hex()}"
         claim.mkdir()
         fd = try_lock(claim)
         (claim / MARKER).write_text(MARKER_RUN)
@@ -431,7 +444,7 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
         with open(staging / "freefem.log", "w") as log:
             proc = subprocess.Popen(launch, cwd=REPO, env=freefem_env(under_mpirun), stdout=subprocess.PIPE,
                                     stderr=subprocess.STDOUT, text=True, errors="replace", pass_fds=(lock,),
-                                    preexec_fn=mpirun_dies_with_parent if under_mpirun else die_with_parent)
+                                    preexec_fn=dies_with_parent(signal.SIGTERM if under_mpirun else signal.SIGKILL))
             guard = Guard(proc, limits, tree=under_mpirun)
             for line in proc.stdout:
                 log.write(line)
@@ -476,24 +489,22 @@ def run_scene(scene, module, runs_dir=None, out_dir=None, script=None, echo=None
         os.close(lock)
 
 
-def die_with_parent():
-    """In the child before exec: the kernel kills FreeFEM when the driver dies (even by SIGKILL)."""
-    libc = ctypes.CDLL(None, use_errno=True)
-    libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-    if os.getppid() == 1:      # the driver died before the line above ran
-        os._exit(1)
+def dies_with_parent(signum):
+    """What the child runs before exec: the kernel sends it signum when the driver dies (even by
+    SIGKILL). FreeFEM gets SIGKILL; mpirun SIGTERM, so that it stops the FreeFEM processes it
+    started (SIGKILL would leave them running). libc is loaded here, in the driver."""
+    import ctypes
+
+    prctl = ctypes.CDLL(None, use_errno=True).prctl
+
+    def preexec():
+        prctl(PR_SET_PDEATHSIG, signum)
+        if os.getppid() == 1:      # the driver died before the line above ran
+            os._exit(1)
+    return preexec
 
 
 PR_SET_PDEATHSIG = 1
-
-
-def mpirun_dies_with_parent():
-    """As die_with_parent for mpirun, by SIGTERM: mpirun then stops the FreeFEM processes
-    it started (SIGKILL would leave them running)."""
-    libc = ctypes.CDLL(None, use_errno=True)
-    libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
-    if os.getppid() == 1:
-        os._exit(1)
 
 
 def run_limits(scene):

@@ -9,6 +9,7 @@ a module here with its schema and its mapping to FreeFEM command-line flags.
 """
 
 import copy
+import importlib
 import json
 import math
 import tomllib
@@ -119,11 +120,17 @@ def full_schema(module):
     return dict(scene=SCENE_HEADER, **module.SCHEMA, limits=LIMITS)
 
 
-def script_modules():
-    # Imported here so that each script module can import this one.
-    from . import fd2d, fd3d, foundation
+# Each script's module (driver/NAME.py), imported when a scene names the script (and here,
+# not at the top, so that each script module can import this one).
+SCRIPT_MODULES = {"contact_foundation_2d": "foundation", "fd_contact_2d": "fd2d", "fd_contact_3d": "fd3d"}
 
-    return {"contact_foundation_2d": foundation, "fd_contact_2d": fd2d, "fd_contact_3d": fd3d}
+
+def script_module(script):
+    return importlib.import_module(f".{SCRIPT_MODULES[script]}", __package__)
+
+
+def script_modules():
+    return {script: script_module(script) for script in SCRIPT_MODULES}
 
 
 def parse_override(text):
@@ -236,11 +243,10 @@ def load_scene_data(data, source, base_dir, overrides=()):
         apply_override(data, keys, value, source)
     header = validate(data.get("scene", {}), SCENE_HEADER, source, "scene.")
     check_units(header["units"], source)
-    modules = script_modules()
-    if header["script"] not in modules:
-        known = ", ".join(sorted(modules))
+    if header["script"] not in SCRIPT_MODULES:
+        known = ", ".join(sorted(SCRIPT_MODULES))
         raise SceneError(f"{source}: key 'scene.script': unknown script {header['script']!r} (known: {known})")
-    module = modules[header["script"]]
+    module = script_module(header["script"])
     base_dir = Path(base_dir)
     tables, derived = module.check(validate(data, full_schema(module), source), source, base_dir)
     return CheckedScene(frozen(tables), module, source, base_dir, **derived), module

@@ -15,7 +15,6 @@ from pathlib import Path
 
 import numpy as np
 
-from . import gmsh_input
 from .errors import SceneError
 from .materials import body_lame
 from .schema import finite_floats
@@ -54,6 +53,8 @@ def gmsh_outline(data, base_dir, where, limits=None):
     lines (.msh), in the plane z = 0; `size` is the mesh size given to gmsh. The file is read
     as data (driver/gmsh_input.py): it must lie in the scene's folder, and a .geo may hold
     geometry statements only."""
+    from . import gmsh_input     # here: only gmsh shapes need it
+
     path = gmsh_input.file_inside(base_dir, data.get("file"), f"{where}.file", (".geo", ".msh"))
     size = data.get("size", 0.02)
     if isinstance(size, bool) or not isinstance(size, (int, float)) or not 0 < size < 1e6:
