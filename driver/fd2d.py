@@ -106,8 +106,6 @@ SCHEMA = {
         "stabilization": Field("str", flag="stabilization", default="auto", choices=STABILIZATIONS,
                                doc="auto: ghost for theta > 0 (coercivity on cut elements), none otherwise; "
                                    "neighbour: stress of the best-cut neighbour (R_rho); ghost: ghost penalty"),
-        "ghost_gamma": Field("float", flag="ghost_gamma", default=1e-2, check=positive, unit="1",
-                             doc="ghost penalty weight, times lambda + 2 mu of each body"),
         "gamma_scaling": Field("str", flag="gamma_scaling", default="shear", choices=GAMMA_SCALINGS,
                                doc="shear: gamma = gamma0 h_K / muStar, muStar = 2 mu1 mu2/(mu1 + mu2) (gamma0 "
                                    "dimensionless); none: gamma = gamma0 h_K (gamma0 in 1/stress); body1: "

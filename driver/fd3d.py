@@ -28,7 +28,7 @@ from .header import SCENE_HEADER
 from .schema import (ADAPT_SCHEMA, Field, FreeFemFlags, Range, at_least, between, positive,
                            put_declared, two_body_method_schema, two_body_solver_schema)
 
-STABILIZATIONS = ("auto", "none", "neighbour")
+STABILIZATIONS = ("auto", "none", "neighbour", "ghost")
 
 
 SCHEMA = {
@@ -94,7 +94,9 @@ SCHEMA = {
                               "set (polyhedra, volume error O(h^2)), the 3D default the 3D study tables were "
                               "measured with"),
         "stabilization": Field("str", flag="stabilization", default="auto", choices=STABILIZATIONS,
-                               doc="auto: neighbour for theta > 0 (coercivity on cut elements), none otherwise"),
+                               doc="auto: neighbour for theta > 0 (coercivity on cut elements), none otherwise; "
+                                   "neighbour: stress of the best-cut neighbour (R_rho); ghost: ghost penalty on the "
+                                   "faces of the cut elements"),
         "gamma_scaling": Field("str", flag="gamma_scaling", default="shear", choices=("shear", "none"),
                                doc="shear: gamma = gamma0 h_K / muStar, muStar = 2 mu1 mu2/(mu1 + mu2) (gamma0 "
                                    "dimensionless); none: gamma = gamma0 h_K (gamma0 in 1/stress)"),

@@ -282,6 +282,8 @@ def two_body_method_schema(degree):
         "rho": Field("float", flag="rho", default=0.25, check=Range(0.0, 1.0, lo_open=True), unit="1",
                      doc="neighbour stabilization: cut ratio |K cap Omega_i|/|K| below which an element "
                          "borrows its neighbour's stress"),
+        "ghost_gamma": Field("float", flag="ghost_gamma", default=1e-2, check=positive, unit="1",
+                             doc="ghost penalty weight, times lambda + 2 mu of each body"),
     }
 
 

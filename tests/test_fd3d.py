@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import REPO, run_cli
+from conftest import REPO, run_cli, run_freefem
 from driver.runner import freefem_env
 
 BALL = "cases/ball_on_slab.toml"
@@ -127,7 +127,8 @@ def test_outputs_are_readable(module_scene):
     ("body1.centre=[0.0, 0.0, -0.1]", "body1"),                # overlaps the slab
     ("body2.top=0.7", "body2.top"),
     ("rigid.fix_y_point=[0.0, 0.0, 0.05]", "rigid.fix_y_point"),
-    ("method.stabilization='ghost'", "method.stabilization"),
+    ("method.stabilization='penalty'", "method.stabilization"),
+    ("method.ghost_gamma=-1", "method.ghost_gamma"),
 ])
 def test_bad_3d_input_is_rejected(override, key):
     proc = run_cli("run", BALL, "--set", override)
@@ -178,6 +179,63 @@ def test_neighbour_stabilization_rescues_theta_one(run_scene, tmp_path):
     assert r["newton"]["iterations"] <= 6
     assert r["contact"]["force_balance_error"] < 1e-6
     assert r["cut"]["case_b"] > 0
+
+
+GHOST_TOOL_BOUNDS = {
+    # measured (nx 6): polynomial |G u| / (|G| |u|) 1.2e-16 (P1), 1.6e-16 (P2); kink relative
+    # errors 1.5e-15 (P1), 3.4e-13 and 1.6e-14 (P2, first and second derivative); the free
+    # block's condition with the ghost penalty over eps = 0.5 .. 1e-3: 278 .. 1159 (P1),
+    # 1.6e4 .. 4.4e4 (P2); without it 3.3e4 .. 3.3e7 (P1), 7.1e3 .. 6.3e10 (P2)
+    1: dict(polynomial=1e-15, kink=1e-14, ghost_condition=1.5e3, plain_condition_at_1e_2=1e7),
+    2: dict(polynomial=1e-15, kink=1e-12, ghost_condition=6e4, plain_condition_at_1e_2=1e10),
+}
+
+
+@pytest.mark.freefem
+@pytest.mark.parametrize("degree", [1, 2])
+def test_ghost_penalty_3d_matrix_and_conditioning(tmp_path, degree):
+    # freefem/tools/ghost_penalty_check_3d.edp: the penalty matrix on its own against
+    # fields whose jumps are known (zero for a global polynomial of degree k; a kink
+    # across a grid plane below the cut layer of a slab), its face count, and the
+    # condition of a slab's cut stiffness as its top nears a grid plane (eps h above it).
+    out = tmp_path / "ghost3d.csv"
+    proc = run_freefem("tools/ghost_penalty_check_3d.edp", f"-Ddegree={degree}", "-nx", 6, "-out", out)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    rows = pd.read_csv(out)
+    bounds = GHOST_TOOL_BOUNDS[degree]
+    check = rows.set_index("check")
+    assert check.loc["polynomial", "value"] < bounds["polynomial"]
+    assert check.loc["faces", "value"] == check.loc["faces", "expected"] == 12 * 6**2 - 4 * 6
+    kinks = ["kink_first", "kink_second"] if degree == 2 else ["kink_first"]
+    for kink in kinks:
+        value, exact = check.loc[kink, "value"], check.loc[kink, "expected"]
+        assert abs(value / exact - 1) < bounds["kink"], kink
+    cond = rows[rows["check"] == "condition"].pivot(index="eps", columns="stabilization", values="value")
+    print(cond)
+    assert (cond["ghost"] < bounds["ghost_condition"]).all()
+    assert cond.loc[1e-2, "none"] > bounds["plain_condition_at_1e_2"]
+    assert (cond.loc[[1e-2, 1e-3], "ghost"] < cond.loc[[1e-2, 1e-3], "none"] / 1e3).all()
+
+
+@pytest.mark.freefem
+def test_ghost_penalty_rescues_theta_one(run_scene, module_scene):
+    # P2, theta = 1, h = 1/6: without stabilization Newton does not converge
+    # (test_neighbour_stabilization_rescues_theta_one); the 3D ghost penalty restores
+    # it. Measured: 3 iterations, force balance 3.4e-8, 408 penalized faces per body,
+    # the centre within 0.76 % of theta = -1's with the same penalty, the Newton
+    # matrix's diagonal spread 7.2e6 (neighbour: 7.1e12, its pins' penalty over the
+    # sliver rows).
+    settings = ["mesh.nx=6", "method.degree=2", "output.vtu=false", "output.estimators=false",
+                "method.stabilization='ghost'"]
+    run = run_scene(BALL, *settings, "method.theta=1")
+    r = run.results
+    assert r["cut"]["stabilization"] == "ghost" and r["cut"]["ghost_gamma"] == 0.01
+    assert r["cut"]["ghost_faces_body1"] > 0 and r["cut"]["ghost_faces_body2"] > 0
+    assert r["newton"]["iterations"] <= 3
+    assert r["contact"]["force_balance_error"] < 1e-7
+    assert r["linear_solver"]["diagonal_spread_max"] < 2e7
+    symmetric = run_scene(BALL, *settings, "method.theta=-1")
+    assert centre_z(run) == pytest.approx(centre_z(symmetric), rel=0.015)
 
 
 def error_tool(ref, run, tmp_path, *extra):
