@@ -87,12 +87,11 @@ SCHEMA = {
                              doc="u1_y = 0 at C (rotation about z), inside the ball, off the line AB in x"),
     },
     "method": dict(two_body_method_schema(1), **{
-        "geometry": Field("str", flag="geometry", default="p1", choices=("p1", "curved"),
+        "geometry": Field("str", flag="geometry", default="curved", choices=("p1", "curved"),
                           doc="cut geometry: curved integrates on the exact level set of the shapes "
                               "(docs/curved-geometry.md: compiled cells, each volume rule checked; the load is "
                               "then the exact volume's, docs/hertz-3d.md); p1 on the P1 interpolant of each level "
-                              "set (polyhedra, volume error O(h^2)), the 3D default the 3D study tables were "
-                              "measured with"),
+                              "set (polyhedra, volume error O(h^2)), which the 3D studies measured on it pin"),
         "stabilization": Field("str", flag="stabilization", default="auto", choices=STABILIZATIONS,
                                doc="auto: neighbour for theta > 0 (coercivity on cut elements), none otherwise; "
                                    "neighbour: stress of the best-cut neighbour (R_rho); ghost: ghost penalty on the "

@@ -40,8 +40,9 @@ def test_ball_on_slab_converges_and_balances(module_scene, theta):
     assert force[2] == pytest.approx(-applied[2], rel=1e-7)
     assert r["contact"]["force_balance_error"] < 1e-7
     assert r["balance"]["balance_error"] < 1e-7
-    # the P1 ball {phi1_h < 0} lies inside the exact ball (phi1 is convex); slab exact
-    assert 0.8 * 0.0654498 < r["measures"]["body1"] < 0.0654498
+    # the curved cells integrate the exact ball (4.2e-8 measured, the volume rules'
+    # tolerance); slab exact
+    assert r["measures"]["body1"] == pytest.approx(4 / 3 * np.pi * 0.25 ** 3, rel=1e-7)
     assert r["measures"]["body2"] == pytest.approx(0.25, rel=1e-8)
     assert 0 < r["contact"]["active_measure"] < 0.1 * r["contact"]["boundary_measure"]
     assert -0.05 < centre_z(run) < -0.02
@@ -51,12 +52,20 @@ def test_ball_on_slab_converges_and_balances(module_scene, theta):
 
 @pytest.mark.freefem
 def test_solution_does_not_depend_on_theta(module_scene):
-    """Every theta gives a consistent method: at nx = 8 the centre for theta = 1 and 0
-    lies within 6.6e-4 and 5.2e-4 (relative) of theta = -1's (measured); the theta term
-    of the contact operator with the wrong sign moves them by 2.3e-2 and 1.2e-2."""
-    reference = centre_z(ball8(module_scene, -1))
-    for theta, bound in ((1, 1.5e-3), (0, 1.2e-3)):
-        assert abs(centre_z(ball8(module_scene, theta)) / reference - 1) < bound, f"theta = {theta}"
+    """Every theta gives a consistent method: the centres for theta = 1 and 0 approach
+    theta = -1's as the mesh is refined. The contact zone (a point on the sphere) is
+    narrower than an element at these sizes, so the gap is a discretization error:
+    theta = 1 lies 7.4e-3 from theta = -1 at nx = 8, 3.4e-3 at nx = 12 (relative,
+    measured), theta = 0 half way (3.4e-3, 1.7e-3)."""
+    def gaps(nx):
+        run = ball8 if nx == 8 else (lambda scene, theta: scene(BALL, f"mesh.nx={nx}", f"method.theta={theta}"))
+        reference = centre_z(run(module_scene, -1))
+        return {theta: abs(centre_z(run(module_scene, theta)) / reference - 1) for theta in (1, 0)}
+    coarse, fine = gaps(8), gaps(12)
+    assert coarse[1] < 9e-3 and fine[1] < 4.2e-3
+    assert coarse[0] < 4.5e-3 and fine[0] < 2.1e-3
+    for theta in (1, 0):   # a ratio of 2.2 measured for both
+        assert fine[theta] < coarse[theta] / 1.8, f"theta = {theta}"
 
 
 @pytest.mark.freefem
@@ -168,7 +177,9 @@ def test_neighbour_stabilization_rescues_theta_one(run_scene, tmp_path):
     # P2, theta = 1, h = 1/6 without stabilization: Newton does not converge in 30
     # iterations (badly cut elements spoil coercivity, results/fd3d_convergence.csv;
     # last residual 1.0); the neighbour stress (R_rho) restores it.
-    settings = ["mesh.nx=6", "method.degree=2", "method.theta=1", "output.vtu=false"]
+    # On the P1 geometry: the curved geometry cuts this mesh's elements less badly and
+    # converges without stabilization at nx = 5 to 9.
+    settings = ["mesh.nx=6", "method.degree=2", "method.theta=1", "output.vtu=false", "method.geometry='p1'"]
     plain = run_cli("run", BALL, "--out", str(tmp_path / "plain"), "--set",
                     " ".join(settings + ["method.stabilization='none'"]))
     assert plain.returncode == 3, plain.stderr
@@ -254,8 +265,11 @@ def test_error_routine_quadrature_path_matches_the_nested_one(run_scene, tmp_pat
     # evaluated at the reference quadrature points (lifted to the coarse background,
     # extended next to the body); on nested meshes that path must give the exact
     # nested figures, and on the run itself shifted by c exactly |c| |Omega_i|^(1/2).
-    ref = run_scene(BALL, "mesh.nx=8", "method.degree=2", "output.save_solution=true", "output.vtu=false")
-    coarse = run_scene(BALL, "mesh.nx=4", "output.save_solution=true", "output.vtu=false")
+    # On the P1 geometry, whose coarse ball lies inside the fine one, so that both paths
+    # extend the coarse field (the curved balls coincide).
+    p1 = "method.geometry='p1'"
+    ref = run_scene(BALL, "mesh.nx=8", "method.degree=2", "output.save_solution=true", "output.vtu=false", p1)
+    coarse = run_scene(BALL, "mesh.nx=4", "output.save_solution=true", "output.vtu=false", p1)
     nested = error_tool(ref.folder, coarse.folder, tmp_path)
     direct = error_tool(ref.folder, coarse.folder, tmp_path, "-direct", "1")
     assert nested["nested"] == 1 and direct["nested"] == 0
@@ -292,7 +306,10 @@ def test_graded_background_solves_and_its_errors_are_measured(run_scene, tmp_pat
         assert r["elements"] > 4 * 6 * 5 ** 3
         assert r["newton"]["converged_by"] in ("tolerance", "roundoff_floor")
         assert r["contact"]["force_balance_error"] < 1e-4
-        assert centre_z(run) == pytest.approx(centre_z(uniform), rel=0.3)
+        # the contact zone is narrower than an element of the uniform mesh: the graded
+        # runs resolve it and sink further (1.41 and 1.61 times the uniform run's centre,
+        # measured; a uniform nx = 16 run: 1.38)
+        assert 1.2 < centre_z(run) / centre_z(uniform) < 1.8
     err = error_tool(ref.folder, uniform.folder, tmp_path)
     assert err["nested"] == 0 and err["body1"]["elements_extended"] > 0
     for body in ("body1", "body2"):
@@ -302,14 +319,16 @@ def test_graded_background_solves_and_its_errors_are_measured(run_scene, tmp_pat
 @pytest.mark.freefem
 def test_predictor_hands_over_from_above(run_scene):
     # P2, nx = 10: the gap-prefix predictor climbs until a trial set is larger than
-    # the set its solution asks for, then semi-smooth Newton shrinks that set to the
-    # final one, never growing it again. A secant below the fixed point, as before,
-    # took 8 steps and 5 factorizations here (its set overshot to 0.0311 against 0.0185;
-    # FreeFem++ -nw freefem/fd_contact_3d.edp -Ddegree=2 -nx 10 at commit ab28073).
+    # the set its solution asks for (0.0288 against the final 0.0235, measured), then
+    # semi-smooth Newton settles it within 0.5 % in three steps. A secant below the
+    # fixed point took 8 steps and 5 factorizations on this mesh (P1 geometry, its set
+    # overshot to 0.0311 against 0.0185; freefem/fd_contact_3d.edp -Ddegree=2 -nx 10
+    # at commit ab28073).
     run = run_scene(BALL, "mesh.nx=10", "method.degree=2", "output.estimators=false", "output.vtu=false")
     n = run.results["newton"]
     assert n["converged_by"] == "tolerance"
     assert n["iterations"] <= 5 and n["factorizations"] <= 2
-    handed_over = n["active_measure"][1:]
-    assert all(b <= a for a, b in zip(handed_over, handed_over[1:]))
-    assert n["active_measure"][-1] == pytest.approx(0.018504, rel=1e-4)
+    final = n["active_measure"][-1]
+    assert n["active_measure"][0] > 1.15 * final
+    assert all(abs(a / final - 1) < 0.01 for a in n["active_measure"][1:])
+    assert final == pytest.approx(0.023523, rel=1e-4)

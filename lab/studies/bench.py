@@ -39,7 +39,7 @@ from driver.errors import DriverError
 from driver.runner import REPO, freefem_binary, freefem_env, parse_json_file
 from driver.sweep import run_point
 from .fd2d import DISK, P1_GEOMETRY, QUIET, errors_against, reference
-from .common import loglog_slope, markdown_table, progress, RESULTS_DIR, save_figure
+from .common import loglog_slope, markdown_table, progress, P1_GEOMETRY_FLAGS, RESULTS_DIR, save_figure
 
 PHASES = ("geometry", "assembly", "newton_contact_assembly", "newton_factor_solve", "estimators", "output")
 LADDER = (10, 20, 40, 80, 160)
@@ -517,8 +517,8 @@ SOLVER_REPEATS = int(os.environ.get("BENCH_SOLVER_REPEATS", "3"))
 SOLVER_BASELINE = "f8c62dd"
 SOLVER_CASES = {   # label -> direct FreeFEM command after the binary (embedded default scenes)
     "2D disk on slab, P2, NX = 80 (default scene)": ["freefem/fd_contact_2d.edp"],
-    "3D ball on slab, P2, nx = 12": ["freefem/fd_contact_3d.edp", "-Ddegree=2", "-nx", "12"],
-    "3D ball on slab, P2, nx = 16": ["freefem/fd_contact_3d.edp", "-Ddegree=2", "-nx", "16"],
+    "3D ball on slab, P2, nx = 12": ["freefem/fd_contact_3d.edp", "-Ddegree=2", "-nx", "12", *P1_GEOMETRY_FLAGS],
+    "3D ball on slab, P2, nx = 16": ["freefem/fd_contact_3d.edp", "-Ddegree=2", "-nx", "16", *P1_GEOMETRY_FLAGS],
 }
 SOLVER_GMRES = "current, GMRES on the last factorization (no low-rank correction)"
 SOLVER_VARIANTS = {   # label -> (tree: "baseline" or "current", extra flags)
@@ -677,9 +677,9 @@ def solver():
 
 ORDERING_CASES = {   # label -> direct FreeFEM command after the binary (embedded default scenes)
     **{f"2D disk on slab, P2, NX = {nx}": ["freefem/fd_contact_2d.edp", "-nx", str(nx)] for nx in (40, 80, 160, 320)},
-    **{f"3D ball on slab, P1, nx = {nx}": ["freefem/fd_contact_3d.edp", "-nx", str(nx)] for nx in (10, 20)},
-    **{f"3D ball on slab, P2, nx = {nx}": ["freefem/fd_contact_3d.edp", "-Ddegree=2", "-nx", str(nx)]
-       for nx in (8, 10, 12, 16)},
+    **{f"3D ball on slab, P1, nx = {nx}": ["freefem/fd_contact_3d.edp", "-nx", str(nx), *P1_GEOMETRY_FLAGS] for nx in (10, 20)},
+    **{f"3D ball on slab, P2, nx = {nx}": ["freefem/fd_contact_3d.edp", "-Ddegree=2", "-nx", str(nx),
+                                                  *P1_GEOMETRY_FLAGS] for nx in (8, 10, 12, 16)},
 }
 ORDERING_REPEATS = int(os.environ.get("BENCH_ORDERING_REPEATS", "3"))
 ORDERINGS = ("amd", "scotch", "auto")
@@ -774,7 +774,7 @@ def bench3d_runs(points, repeats, quiet, prefix, versions=BENCH3D_VERSIONS):
                     progress(len(rows) + 1, total, f"3D P{degree} nx = {nx}, {version}")
                     folder = Path(tmp) / f"run{len(rows)}"
                     load = load_average()
-                    command = ["freefem/fd_contact_3d.edp", f"-Ddegree={degree}", "-nx", str(nx), *flags]
+                    command = ["freefem/fd_contact_3d.edp", f"-Ddegree={degree}", "-nx", str(nx), *P1_GEOMETRY_FLAGS, *flags]
                     wall, cpu, rss = timed_solve(trees[tree], command, folder, quiet=quiet)
                     results = parse_json_file(folder / "results.json")
                     timings, newton = results["timings_cpu_s"], results["newton"]

@@ -30,7 +30,7 @@ from driver.errors import DriverError
 from driver.runner import REPO, freefem_binary, freefem_env, parse_json_file
 from .bench import (load_average, machine, save_results, stamped, timed_run, user_environment,
                      versions_to_time)
-from .common import markdown_table, progress
+from .common import markdown_table, progress, P1_GEOMETRY_FLAGS
 
 SCALE_BASELINE = "d58614e"   # the version the large-run targets are set against
 LARGE_REPEATS = int(os.environ.get("BENCH_SCALE_REPEATS", "3"))   # runs of minutes
@@ -41,14 +41,16 @@ SPHERE_LABEL = "3D sphere on sphere, P2, grade_h = 0.01"
 DISK_LABEL = "2D default scene (disk on slab), FreeFEM run"
 MAKE_CASE_LABEL = "2D default scene, the driver's run (make case)"
 # The sphere on sphere of the Hertz runs: F = 1e-4 on body 1 (f = F / volume),
-# pinned on its axis, P2 graded to 0.01 within 0.04 of the contact point: 122,562 DOFs.
+# pinned on its axis, P2 graded to 0.01 within 0.04 of the contact point, on the P1
+# cut geometry (P1_GEOMETRY_FLAGS): 122,562 DOFs.
 SPHERE_SET = ("method.degree=2 mesh.grade_h=0.01 mesh.grade_radius=0.04 mesh.grade_point=[0,0,0] "
               "body1.body_force=[0,0,-0.0015278874536821952] rigid.fix_xy_points=[0,0,0.1,0,0,0.4] "
-              "rigid.fix_y_point=[0.1,0,0.25] solver.allow_unbalanced=true")
+              "rigid.fix_y_point=[0.1,0,0.25] solver.allow_unbalanced=true method.geometry=p1")
 # label -> (kind, arguments, repeats): "direct" runs FreeFem++ on freefem/..., "driver"
 # runs python -m driver run
 CASES = {
-    BALL_LABEL: ("direct", ["freefem/fd_contact_3d.edp", "-Ddegree=2", "-nx", "30", "-estimators", "0", "-vtu", "0"],
+    BALL_LABEL: ("direct", ["freefem/fd_contact_3d.edp", "-Ddegree=2", "-nx", "30", "-estimators", "0", "-vtu", "0",
+                            *P1_GEOMETRY_FLAGS],
                  LARGE_REPEATS),
     SPHERE_LABEL: ("driver", ["cases/sphere_on_sphere.toml", "--set", SPHERE_SET], LARGE_REPEATS),
     DISK_LABEL: ("direct", ["freefem/fd_contact_2d.edp"], SMALL_REPEATS),
@@ -176,7 +178,7 @@ def loopback_bytes():
 
 def mpi_command(processes, out):
     args = ["freefem/fd_contact_3d.edp", "-Ddegree=2", "-nx", "30", "-estimators", "0", "-vtu", "0", "-csv", "0",
-            "-outdir", str(out)]
+            *P1_GEOMETRY_FLAGS, "-outdir", str(out)]
     if processes == 0:
         return [freefem_binary(), "-nw", "-v", "0", *args]
     # TCP between the processes (not shared memory), so that the loopback counts their bytes
@@ -288,7 +290,7 @@ def large_run():
     with tempfile.TemporaryDirectory(prefix="bench-scale-large-") as tmp:
         out = Path(tmp) / "run"
         args = ["freefem/fd_contact_3d.edp", "-Ddegree=2", "-nx", str(LARGE_NX), "-estimators", "0", "-vtu", "0",
-                "-csv", "0"]
+                "-csv", "0", *P1_GEOMETRY_FLAGS]
         progress(1, 1, f"3D ball on slab, P2, nx = {LARGE_NX}")
         load = load_average()
         wall, cpu, rss = timed_run(command("direct", args, out), freefem_env(), REPO, "bench-scale: the largest run")

@@ -102,7 +102,7 @@ def reference(geometry="p1"):
 
 
 def geometry_suffix(geometry):
-    """Folder names: the P1 geometry (the 3D default) keeps the names it had before the option."""
+    """Folder names: the P1 geometry keeps the names it had before the curved one existed."""
     return "" if geometry == "p1" else f"_{geometry}"
 
 

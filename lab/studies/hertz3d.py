@@ -37,9 +37,10 @@ SECTORS = 16           # angular sectors of the contact radius
 # What P1 needs: its multiplier is a stress of piecewise constant gradients, so it
 # takes a finer mesh than P2 for the same zone (the P1 rows of the table).
 P1_MESH = ["method.degree=1", "mesh.grade_h=0.004"]
-# The 3D defaults (gamma0 = 1/200, no stabilization for theta = -1, the P1 cut geometry,
-# one grading pass) on the scene's mesh: what a scene without the study's settings gets.
-THREE_D_DEFAULTS = ["method.gamma0=0.005", "method.stabilization='none'", "method.geometry='p1'",
+# The 3D defaults (gamma0 = 1/200, no stabilization for theta = -1, the curved cut
+# geometry, one grading pass) on the scene's mesh: what a scene without the study's
+# settings gets.
+THREE_D_DEFAULTS = ["method.gamma0=0.005", "method.stabilization='none'", "method.geometry='curved'",
                     "mesh.grade_passes=1"]
 
 
