@@ -191,7 +191,8 @@ mutation: setup
 #   (results/bench_scale*.csv; BENCH_SCALE_REPEATS, BENCH_SCALE_LARGE_NX).
 # scenes-study: the shipped 2D scenes as a user runs them: results/scenes.csv,
 #   results/hertz.csv (the Hertz scene against Hertz's half-width, force and pressure;
-#   README table).
+#   README table); the shipped 3D scenes' volume (load) errors, balance and cost:
+#   results/scenes_3d.csv.
 # hertz-3d-study: Hertz's sphere on sphere (cases/hertz_spheres.toml) against Hertz
 #   (docs/hertz-3d.md): the settings that suit 3D (gamma0, stabilization, contact points,
 #   cut geometry, grading passes; results/hertz_spheres_settings.csv), the recovery's

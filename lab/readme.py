@@ -429,6 +429,17 @@ def scenes():
     return markdown_table(t[["scene", "dofs", "newton_iterations", "force_y", "balance_error", "wall_s"]], digits=3)
 
 
+def scenes_3d():
+    t = pd.read_csv(RESULTS / "scenes_3d.csv")
+    t["scene"] = t.case.str.replace("cases/", "", regex=False)
+    out = t[["scene", "geometry", "degree", "dofs", "newton_iterations"]].copy()
+    for body in ("body1", "body2"):
+        out[f"volume error {body}"] = t[f"volume_error_{body}"].map(lambda v: "no formula" if pd.isna(v) else f"{v:.1e}")
+    out["force balance"] = t.force_balance_error.map(lambda v: f"{v:.1e}")
+    out["wall s"] = t.wall_s.map(lambda v: f"{v:.1f}")
+    return markdown_table(out, digits=3)
+
+
 
 def pressure_recovery():
     from .studies.pressure import recovery_table

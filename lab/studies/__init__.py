@@ -57,6 +57,7 @@ STUDIES = (
     Study("bench-scale", "bench_scale", "bench_scale", "bench",
           ("bench_scale", "bench_scale_targets", "bench_scale_mpi", "bench_scale_large", "bench_scale_model")),
     Study("scenes", "scenes", "scenes", "scenes-study", ("scenes", "hertz")),
+    Study("scenes-3d", "scenes", "scenes_3d", "scenes-study", ("scenes_3d",)),
     Study("hertz-3d-settings", "hertz3d", "settings", "hertz-3d-study", ("hertz_spheres_settings",)),
     Study("hertz-3d-coarse", "hertz3d", "coarse", "hertz-3d-study", ("hertz_spheres_coarse",)),
     Study("hertz-3d-recovery", "hertz3d", "recovery", "hertz-3d-study", ("hertz_spheres_recovery",)),
