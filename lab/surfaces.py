@@ -1,5 +1,5 @@
 """Closed triangulated surfaces for the shape "surface": the shipped scene's torus
-(cases/geo/torus.stl, `python -m lab.surfaces`) and the tests' boxes.
+(cases/geo/torus.stl, `python -m lab.surfaces`) and the tests' closed forms (a notched cube, a prism with a sharp edge).
 
 Each function returns (points, triangles) with the triangles counter-clockwise seen
 from outside; write_stl writes them as an ascii STL, every coordinate in full precision
@@ -57,6 +57,57 @@ def box(lo, hi, n):
                     quad = [(a, b, c), (a, c, d)] if side == 1 else [(a, c, b), (a, d, c)]
                     triangles += quad
     return np.array(points), np.array(triangles)
+
+
+def notched_cube(lo, side, n):
+    """The cube [lo, lo + side]^3 without its upper corner octant: its eight half-side cubes
+    but the one at (1, 1, 1). Convex and concave edges and corners and saddle corners (where a
+    concave edge meets convex ones); each square of the boundary in n x n squares of two
+    triangles."""
+    half = side / 2
+    filled = {(i, j, k) for i in (0, 1) for j in (0, 1) for k in (0, 1)} - {(1, 1, 1)}
+    points, triangles, index = [], [], {}
+
+    def vertex(p):
+        key = tuple(float(v) for v in p)
+        if key not in index:
+            index[key] = len(points)
+            points.append(key)
+        return index[key]
+
+    for cell in sorted(filled):
+        for axis in range(3):
+            for step in (-1, 1):
+                neighbour = list(cell)
+                neighbour[axis] += step
+                if tuple(neighbour) in filled:
+                    continue
+                e1, e2 = (axis + 1) % 3, (axis + 2) % 3
+                corner = np.array(lo, float) + half * np.array(cell, float)
+                corner[axis] += half if step == 1 else 0.0
+
+                def at(i, j):
+                    p = corner.copy()
+                    p[e1] += half * i / n
+                    p[e2] += half * j / n
+                    return vertex(p)
+                for i in range(n):
+                    for j in range(n):
+                        a, b, c, d = at(i, j), at(i + 1, j), at(i + 1, j + 1), at(i, j + 1)
+                        # (e1, e2, axis) is right-handed: counter-clockwise seen from +axis
+                        triangles += [(a, b, c), (a, c, d)] if step == 1 else [(a, c, b), (a, d, c)]
+    return np.array(points), np.array(triangles)
+
+
+def prism(corners, z0, z1):
+    """The triangle `corners` ([[x, y], ...], counter-clockwise) extruded from z0 to z1: two
+    end triangles, each side rectangle two triangles."""
+    points = np.array([[x, y, z] for z in (z0, z1) for x, y in corners], float)
+    triangles = [(0, 2, 1), (3, 4, 5)]
+    for i in range(3):
+        j = (i + 1) % 3
+        triangles += [(i, j, j + 3), (i, j + 3, i + 3)]
+    return points, np.array(triangles)
 
 
 def write_stl(path, points, triangles, name="surface"):
