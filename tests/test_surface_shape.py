@@ -207,6 +207,24 @@ def test_a_clean_surface_is_accepted_as_stl_binary_stl_and_msh(tmp_path):
     assert modules[0] == pytest.approx(enclosed, rel=1e-14) and modules[2] == pytest.approx(enclosed, rel=1e-14)
 
 
+def test_scale_reads_a_surface_in_other_units(tmp_path):
+    """The torus written in millimetres and read with scale = 0.001 gives the module of the
+    torus in metres: the same exact volume (to 1e-12) and a table of the scaled coordinates."""
+    torus_stl(tmp_path, "metres.stl")
+    torus_stl(tmp_path, "mm.stl", edit=lambda p, t: (1000 * p, t))
+    metres = run_cli("scene-module", str(scene_with(tmp_path, "metres.stl")), cwd=tmp_path)
+    path = tmp_path / "scene.toml"
+    path.write_text(SCENE.replace('"{file}"', '"mm.stl", scale = 0.001'))
+    mm = run_cli("scene-module", str(path), cwd=tmp_path)
+    assert metres.returncode == 0 and mm.returncode == 0, metres.stderr + mm.stderr
+
+    def volume(module):
+        return float(module.split("real exactMeasure1 = ")[1].split(";")[0])
+    assert volume(mm.stdout) == pytest.approx(volume(metres.stdout), rel=1e-12)
+    path.write_text(SCENE.replace('"{file}"', '"mm.stl", scale = -1.0'))
+    one_error(run_cli("scene-module", str(path), cwd=tmp_path), "body1.shape.scale: must be a number > 0")
+
+
 def flip_one(points, triangles):
     triangles[7] = triangles[7][::-1]
     return points, triangles
