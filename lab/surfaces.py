@@ -47,8 +47,9 @@ def box(lo, hi, n):
         e1, e2 = (axis + 1) % 3, (axis + 2) % 3
         for side, value in ((0, lo[axis]), (1, hi[axis])):
             def at(i, j):
+                # linspace ends exactly at lo and hi: a corner shared by three faces is one vertex
                 p = np.empty(3)
-                p[axis], p[e1], p[e2] = value, lo[e1] + (hi[e1] - lo[e1]) * i / n, lo[e2] + (hi[e2] - lo[e2]) * j / n
+                p[axis], p[e1], p[e2] = value, np.linspace(lo[e1], hi[e1], n + 1)[i], np.linspace(lo[e2], hi[e2], n + 1)[j]
                 return vertex(p)
             for i in range(n):
                 for j in range(n):

@@ -16,7 +16,7 @@ import pytest
 
 from driver.geometry import Box, Polygon, Surface
 from driver.surface_input import enclosed_volume, surface_table
-from lab.surfaces import TORUS, notched_cube, prism, torus, write_stl
+from lab.surfaces import TORUS, box, notched_cube, prism, torus, write_stl
 from tests.conftest import REPO, run_cli, run_freefem
 
 LO, SIDE = (-0.2, -0.2, -0.2), 0.4       # the notched cube: lab.surfaces.notched_cube(LO, SIDE, 2)
@@ -159,6 +159,26 @@ def test_torus_scene_balances_on_the_volume_its_surface_encloses(run_scene):
     assert r["balance"]["balance_error"] < 1e-6 and not r["balance"]["unbalanced"]
     assert r["contact"]["force_on_body1"][2] == pytest.approx(0.1 * r["measures"]["body1"], rel=1e-6)
     assert len(list(run.folder.glob("surface-*.txt"))) == 1     # the table, beside scene.idp
+
+
+@pytest.mark.freefem
+def test_a_surface_slab_as_body_2_gives_the_half_space_slabs_run(tmp_path, run_scene):
+    """cases/ball_on_slab.toml (nx = 8) with its slab {z < -0.25} given as the STL of the box
+    [-0.6, 0.6]^2 x [-0.6, -0.25] (108 triangles, held on the box face zmin): the same zero level
+    set near the contact, so the same run: the probe's displacement within 3.8e-12, the contact
+    force within 1.7e-14 (measured), the same active area; the box clips the surface, so no exact
+    volume."""
+    write_stl(tmp_path / "slab.stl", *box((-0.6, -0.6, -0.6), (0.6, 0.6, -0.25), 3))
+    text = (REPO / "cases" / "ball_on_slab.toml").read_text()
+    text = text.replace('shape = "slab"', 'shape = { type = "surface", file = "slab.stl" }\nhold = [{ face = "zmin" }]')
+    (tmp_path / "scene.toml").write_text(text.replace("top = -0.25", ""))
+    small = ("mesh.nx=8", "output.vtu=false", "output.estimators=false", "output.csv=false")
+    surface = run_scene(str(tmp_path / "scene.toml"), *small).results
+    slab = run_scene("cases/ball_on_slab.toml", *small).results
+    assert surface["probes"]["centre"][2] == pytest.approx(slab["probes"]["centre"][2], rel=4e-11)
+    assert surface["contact"]["force_on_body1"][2] == pytest.approx(slab["contact"]["force_on_body1"][2], rel=1e-12)
+    assert surface["contact"]["active_measure"] == pytest.approx(slab["contact"]["active_measure"], rel=1e-12)
+    assert surface["measures"]["body2_exact"] is None and slab["measures"]["body2_exact"] == 0.25
 
 
 # ---- hostile files -------------------------------------------------------------------------------
