@@ -181,6 +181,19 @@ def test_a_surface_slab_as_body_2_gives_the_half_space_slabs_run(tmp_path, run_s
     assert surface["measures"]["body2_exact"] is None and slab["measures"]["body2_exact"] == 0.25
 
 
+@pytest.mark.freefem
+def test_a_failed_run_keeps_the_surface_table_with_its_inputs(tmp_path):
+    """A run stopped by its Newton limit (exit 3) leaves RUN.failed with scene.idp and the table
+    it reads (so it can be rerun), and no results.json."""
+    proc = run_cli("run", "cases/torus_on_slab.toml", "--set", "mesh.nx=9", "--set", "solver.newton_max=1",
+                   "--set", "output.vtu=false", "--out", str(tmp_path / "run"))
+    assert proc.returncode == 3, proc.stderr[-2000:]
+    failed = tmp_path / "run.failed"
+    assert (failed / "scene.idp").is_file() and not (failed / "results.json").exists()
+    tables = list(failed.glob("surface-*.txt"))
+    assert len(tables) == 1 and tables[0].name in (failed / "scene.idp").read_text()
+
+
 # ---- hostile files -------------------------------------------------------------------------------
 
 SCENE = (REPO / "cases" / "torus_on_slab.toml").read_text().replace('"geo/torus.stl"', '"{file}"')
