@@ -18,7 +18,8 @@ SUDO := $(shell [ "$$(id -u)" -eq 0 ] || echo sudo)
 # estimators' cut-edge pieces, the contact points' projections and the level-set
 # normals, curved_cells.cpp; the recovered contact pressure, pressure_recovery.cpp; the
 # nearest submesh element of 3D points outside a body's submesh, nearest_kept.cpp; the
-# body files' von_mises_inside, inside_extension.cpp).
+# body files' von_mises_inside, inside_extension.cpp; the signed distance to a surface
+# shape's triangles, surface_distance.cpp).
 # libmumps-dev, libopenmpi-dev, openmpi-bin: runs on several processes (solver.ranks,
 # docs/mpi.md): Debian's parallel MUMPS (with ScaLAPACK) for the MPI build of
 # contact_mumps, mpicxx to build it, mpirun to start FreeFem++-mpi (in freefem++).

@@ -23,7 +23,7 @@ import numpy as np
 from .errors import SceneError
 from .fd2d import body_schema
 from .scene_module import check_two_bodies, summary_head, summary_lines  # noqa: F401  (the CLI's)
-from .scene_module import scene_module  # noqa: F401  (the runner calls module.scene_module)
+from .scene_module import scene_files, scene_module  # noqa: F401  (the runner calls both)
 from .header import SCENE_HEADER
 from .schema import (ADAPT_SCHEMA, Field, FreeFemFlags, Range, at_least, between, positive,
                            put_declared, two_body_method_schema, two_body_solver_schema)

@@ -1,8 +1,8 @@
 """Shapes of a scene: a tree of primitives and boolean operations, in 2D or 3D.
 
 A shape is a TOML table with a `type`: a primitive (2D: disk, ellipse, box,
-half_plane, polygon, gmsh; 3D: ball, ellipsoid, box, cylinder, half_space; both:
-expression) or a boolean (union, intersection, difference: `of = [shape, ...]`).
+half_plane, polygon, gmsh; 3D: ball, ellipsoid, box, cylinder, half_space, surface;
+both: expression) or a boolean (union, intersection, difference: `of = [shape, ...]`).
 Any shape may carry `translate` (a vector) and `rotate` (degrees: one angle in 2D;
 [about x, about y, about z] in 3D, applied in that order), which place it: a point
 x of the scene is tested at R^T (x - translate) in the shape's own coordinates.
@@ -26,7 +26,7 @@ from .schema import finite_float, finite_floats
 
 PRIMITIVES = {
     2: ("disk", "ellipse", "box", "half_plane", "polygon", "gmsh", "expression"),
-    3: ("ball", "ellipsoid", "box", "cylinder", "half_space", "expression"),
+    3: ("ball", "ellipsoid", "box", "cylinder", "half_space", "surface", "expression"),
 }
 BOOLEANS = ("union", "intersection", "difference")
 MAX_POLYGON_EDGES = 400
@@ -272,6 +272,49 @@ class Polygon(Shape):
         return [min(xs), min(ys)], [max(xs), max(ys)]
 
 
+class Surface(Shape):
+    """A closed triangulated surface read from a file (driver/surface_input.py): the exact signed
+    distance to its triangles, the sign from the angle-weighted pseudo-normal of the nearest
+    feature. FreeFEM evaluates it with the plugin freefem/plugins/surface_distance.cpp on a table
+    written beside the scene module; numpy's side is libigl's signed_distance with the same
+    rule."""
+
+    def __init__(self, dim, translate, rotation, points, triangles):
+        from . import surface_input
+
+        super().__init__(dim, translate, rotation)
+        self.points, self.triangles = points, triangles
+        self.table = surface_input.surface_table(points, triangles)
+        self.table_name = surface_input.table_name(self.table)
+        self.variable = "surfaceTable" + self.table_name[len("surface-"):-len(".txt")]
+        self.volume = surface_input.enclosed_volume(points, triangles)
+
+    def phi_local(self, x, y, z):
+        import igl
+
+        shape = np.broadcast_shapes(np.shape(x), np.shape(y), np.shape(z))
+        query = np.column_stack([np.broadcast_to(c, shape).reshape(-1) for c in (x, y, z)]).astype(float)
+        distance = igl.signed_distance(query, self.points, self.triangles,
+                                       sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)[0]
+        return distance.reshape(shape)
+
+    def code_local(self, x, y, z):
+        return f"surfaceDistance({self.variable}, {x}, {y}, {z})"
+
+    def measure(self):
+        return self.volume
+
+    def bounds_local(self):
+        return list(self.points.min(axis=0)), list(self.points.max(axis=0))
+
+
+def surfaces_in(shape):
+    """The Surface shapes of a tree."""
+    if isinstance(shape, Surface):
+        return [shape]
+    return [s for child in getattr(shape, "children", []) for s in surfaces_in(child)]
+
+
 # ---------------------------------------------------------------- expressions
 
 FUNCTIONS = {"sqrt": 1, "abs": 1, "exp": 1, "log": 1, "sin": 1, "cos": 1, "tan": 1, "atan": 1, "tanh": 1,
@@ -420,7 +463,7 @@ ALLOWED_KEYS = {
     "ellipse": {"centre", "semi_axes"}, "ellipsoid": {"centre", "semi_axes"},
     "box": {"min", "max", "corner_radius", "edge_radius"},
     "half_plane": {"point", "normal"}, "half_space": {"point", "normal"},
-    "polygon": {"vertices"}, "gmsh": {"file", "size"},
+    "polygon": {"vertices"}, "gmsh": {"file", "size"}, "surface": {"file", "scale"},
     "cylinder": {"centre", "axis", "radius", "length"},
     "expression": {"phi"},
     "union": {"of"}, "intersection": {"of"}, "difference": {"of"},
@@ -443,6 +486,10 @@ SHAPE_DOCS = {
     "gmsh": ("2D", "file (a .geo or .msh next to the scene), size (mesh size of the outline, default 0.02)",
              "the closed outline(s) in z = 0 meshed by gmsh, as a polygon; .geo files that run programs "
              "or write files are refused"),
+    "surface": ("3D", "file (an .stl, ascii or binary, or a gmsh .msh of triangles, next to the scene), scale "
+                "(a factor on its coordinates, default 1)",
+                "exact signed distance to a closed, consistently oriented triangulated surface (at most "
+                "50,000 triangles; the run's volume is the one it encloses)"),
     "expression": ("2D, 3D", "phi = \"...\" in x, y (z): numbers, pi, + - * / ^ and sqrt abs exp log sin "
                    "cos tan atan tanh atan2 min max pow", "any level set (< 0 inside); parsed and rebuilt, "
                    "never copied"),
@@ -516,6 +563,13 @@ def read_shape(data, dim, where, base_dir=None, mesher=None, depth=0):
             raise SceneError(f"{where}: gmsh shapes need the driver (a scene file)")
         loops = mesher(data, base_dir, f"{where}")
         return checked_polygon(Polygon(*args, loops), f"{where}.file")
+    if kind == "surface":
+        from .surface_input import read_surface
+
+        if base_dir is None:
+            raise SceneError(f"{where}: surface shapes need the driver (a scene file)")
+        scale = positive_number(data.get("scale", 1.0), f"{where}.scale")
+        return Surface(*args, *read_surface(base_dir, data.get("file"), scale, f"{where}.file"))
     if kind == "expression":
         return Expression(*args, need("phi"), f"{where}.phi")
     items = need("of")

@@ -27,6 +27,7 @@ from .errors import DriverError, FreeFemError, NewtonError, SceneError
 from .paths import FREEFEM_DIR, IN_CHECKOUT, REPO
 from .plugins import ensure_plugins
 from .resources import available_memory_mb, check_fits
+from .surface_input import is_table_name
 
 TOOLS_DIR = FREEFEM_DIR / "tools"     # error measures and cross-checks (run_freefem_tool)
 FREEFEM_PLUGIN_DIR = "/usr/lib/freefem++"   # FreeFEM's own plugins (Debian's libfreefem++)
@@ -618,12 +619,15 @@ def exit_name(returncode):
 
 def write_scene_module(scene, module, script, staging):
     """The script FreeFEM runs: for a scene with a scene module (docs/scene-modules.md),
-    run.edp in the run folder, which includes scene.idp (beside it) and then the solver
-    (from the repository root, FreeFEM's working folder); else the solver itself."""
+    run.edp in the run folder, which includes scene.idp (beside it, with the files it reads:
+    the surface shapes' tables) and then the solver (from the repository root, FreeFEM's
+    working folder); else the solver itself."""
     make = getattr(module, "scene_module", None)
     if make is None:
         return script
     (staging / "scene.idp").write_text(make(scene))
+    for name, text in getattr(module, "scene_files", lambda _: {})(scene).items():
+        (staging / name).write_text(text)
     script = script.resolve()
     name = script.relative_to(REPO).as_posix() if script.is_relative_to(REPO) else str(script)
     if '"' in name or "\n" in name:
@@ -635,13 +639,14 @@ def write_scene_module(scene, module, script, staging):
 
 # What a failed run keeps: its inputs, its log and why it failed. Whatever else FreeFEM wrote
 # (fields, tables, a truncated file after a signal) is removed: nothing that looks like a result.
+# The surface shapes' tables (surface-*.txt) are inputs: kept.
 KEPT_ON_FAILURE = {MARKER, "scene.json", "scene.idp", "run.edp", "command.txt", "freefem.log",
                    "failure.json", "mesh.msh"}
 
 
 def remove_outputs(staging):
     for entry in list(os.scandir(staging)):
-        if entry.name in KEPT_ON_FAILURE:
+        if entry.name in KEPT_ON_FAILURE or is_table_name(entry.name):
             continue
         if entry.is_dir(follow_symlinks=False):
             shutil.rmtree(entry.path, ignore_errors=True)

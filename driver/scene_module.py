@@ -19,7 +19,7 @@ from .errors import SceneError
 from .materials import body_lame
 from .schema import finite_floats
 from .geometry import (MAX_POLYGON_EDGES, Boolean, Disk, HalfSpace, fmt, placed_measure, read_shape,
-                             sample_grid)
+                             sample_grid, surfaces_in)
 
 FACES = {"ymin": 1, "xmax": 2, "ymax": 3, "xmin": 4, "zmin": 5, "zmax": 6}
 COMPONENTS = ("x", "y", "z")
@@ -265,6 +265,11 @@ class Bodies:
         lines = [f"IFMACRO(!{guard})", f"macro {guard}()1 // included once",
                  f"// Scene module ({title}), written by the driver: docs/scene-modules.md lists every name.",
                  "// Generated from the scene file; edit the scene, not this file."]
+        surfaces = self.surfaces()
+        if surfaces:
+            lines.append('include "freefem/lib/fd3d/surface.idp"   // surfaceFromTable: the surface shapes\' tables')
+        for surface in surfaces.values():
+            lines.append(f'int {surface.variable} = surfaceFromTable("{surface.table_name}");   // beside this module')
         for i, shape in enumerate(self.shapes, start=1):
             lines.append(f"macro phi{i}At({point}) {shape.code(*coords)} //")
         for i in (1, 2):
@@ -283,6 +288,11 @@ class Bodies:
             lines.append(f"real exactMeasure{i} = {fmt(m) if m is not None else '-1.'};")
         lines.append("ENDIFMACRO")
         return "\n".join(lines) + "\n"
+
+    def surfaces(self):
+        """The surface shapes of the bodies and of their hold and load regions, by table name."""
+        trees = self.shapes + [p["region"] for parts in self.holds + self.loads for p in parts if "region" in p]
+        return {s.table_name: s for tree in trees for s in surfaces_in(tree)}
 
     def face_arrays(self, i):
         d = self.dim
@@ -392,6 +402,12 @@ def legacy_probe(scene):
 def scene_module(scene):
     """Text of a checked scene's module (the runner writes it as RUN/scene.idp)."""
     return scene.bodies.module_text(scene["scene"]["name"])
+
+
+def scene_files(scene):
+    """The files the module reads beside it (the runner writes them into the run folder):
+    the surface shapes' tables, by name."""
+    return {name: surface.table for name, surface in scene.bodies.surfaces().items()}
 
 
 def legacy_supports(scene, dim):

@@ -159,7 +159,7 @@ def test_a_wheel_ships_the_scripts_the_plugins_sources_and_the_command(wheel):
     for name in ("fdcontact/api.py", "fdcontact/freefem/fd_contact_2d.edp", "fdcontact/freefem/fd_contact_3d.edp",
                  "fdcontact/freefem/lib/core/contact_law.idp", "fdcontact/freefem/plugins/contact_mumps.cpp",
                  "fdcontact/freefem/plugins/link_flags.txt", "fdcontact/cases/disk_on_slab.toml",
-                 "fdcontact/cases/geo/cam.geo"):
+                 "fdcontact/cases/geo/cam.geo", "fdcontact/cases/geo/torus.stl"):
         assert name in names, name
     entry = next(n for n in names if n.endswith("entry_points.txt"))
     assert "fdcontact = fdcontact.cli:main" in zipfile.ZipFile(wheel).read(entry).decode()
