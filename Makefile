@@ -85,8 +85,8 @@ setup-system:
 #
 # The check costs nothing when everything is installed: $(PYTHON_STAMP) lists the
 # venv's interpreter and the file each package was found at, and while the stamp is
-# newer than requirements.txt, the venv was made by the same PYTHON and every file
-# it lists exists, no Python starts. Otherwise one Python process looks the packages
+# newer than requirements.txt, pyproject.toml and this Makefile (its PYTHON_PACKAGES),
+# the venv was made by the same PYTHON and every file it lists exists, no Python starts. Otherwise one Python process looks the packages
 # up (find_spec locates them without importing; importing them all costs about
 # 1.3 s) and writes the stamp, or exits 1 when one is missing: then pip installs
 # requirements.txt into the venv and the look-up runs again. A package removed, a
@@ -94,7 +94,7 @@ setup-system:
 VENV := .venv
 VENV_PYTHON := $(VENV)/bin/python
 VENV_MARK := $(VENV)/.made-by-make-setup
-PYTHON_PACKAGES := numpy pandas matplotlib meshio pytest scipy dask distributed tqdm fdcontact
+PYTHON_PACKAGES := numpy pandas matplotlib meshio igl pytest scipy dask distributed tqdm fdcontact
 PYTHON_STAMP := $(VENV)/.setup-python
 PYTHON_STAMP_WRITE = $(VENV_PYTHON) -c "import importlib.util as u, os, sys; \
 	specs = [u.find_spec(m) for m in sys.argv[3:]]; None in specs and sys.exit(1); \
@@ -103,7 +103,8 @@ PYTHON_STAMP_WRITE = $(VENV_PYTHON) -c "import importlib.util as u, os, sys; \
 SAME_PYTHON = { [ "$$(cat $(VENV_MARK) 2>/dev/null)" = "$$base" ] || [ "$$base" -ef $(VENV_PYTHON) ]; }
 setup-python: setup-system
 	@base="$$(command -v $(PYTHON))" || { echo "ERROR: no interpreter $(PYTHON) (set PYTHON=/path/to/python3)"; exit 1; }; \
-	if ! { [ $(PYTHON_STAMP) -nt requirements.txt ] && [ $(PYTHON_STAMP) -nt pyproject.toml ] && $(SAME_PYTHON) \
+	if ! { [ $(PYTHON_STAMP) -nt requirements.txt ] && [ $(PYTHON_STAMP) -nt pyproject.toml ] \
+	        && [ $(PYTHON_STAMP) -nt Makefile ] && $(SAME_PYTHON) \
 	        && ( while read -r f; do [ -e "$$f" ] || exit 1; done < $(PYTHON_STAMP) ); }; then \
 	  if ! { [ -f $(VENV_MARK) ] && $(SAME_PYTHON) && [ -x $(VENV_PYTHON) ]; }; then \
 	    if [ -e $(VENV) ] || [ -L $(VENV) ]; then \

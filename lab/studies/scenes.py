@@ -16,7 +16,7 @@ from .common import RESULTS_DIR, hertz_radius_and_modulus, progress, weighted_re
 # so its error against the exact volume's load is the volume's (results/scenes_3d.csv).
 SCENES_3D = ["cases/ball_on_slab.toml", "cases/rounded_cube_on_slab.toml", "cases/sphere_on_sphere.toml",
              "cases/hertz_spheres.toml", "cases/verification/clamped_ball.toml",
-             "cases/verification/held_shell.toml"]
+             "cases/verification/held_shell.toml", "cases/torus_on_slab.toml"]
 SCENES = ["cases/disk_on_slab.toml", "cases/disk_on_tilted_slab.toml", "cases/hertz_cylinders.toml",
           "cases/punch.toml", "cases/ellipse_on_arch.toml", "cases/ring_on_slab.toml", "cases/cam_on_slab.toml"]
 
