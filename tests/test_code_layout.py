@@ -91,6 +91,27 @@ def test_the_declaration_scan_sees_a_pasted_body_name():
     assert [n for n in found if BODY_PASTED.search(n)] == ["cut#i#K", "cv#i#x", "nCurvedFallback#i"]
 
 
+# The scene module's per-body interface (docs/scene-modules.md), the one family of
+# names a macro may still read by pasting a body index: a stage's names reach the
+# macros as arguments or as a record prefix written at the call (ci1, hold1, sig1).
+SCENE_PER_BODY = {"phi", "holdFace", "loadFace", "holdCut", "loadCut", "holdCutAny", "loadCutAny", "holdCutCount"}
+BODY_PASTED_READ = re.compile(r"([A-Za-z_]\w*)#(?:i|b)\b")
+
+
+def pasted_stage_reads(source):
+    return [m.group(0) for m in BODY_PASTED_READ.finditer(source) if m.group(1) not in SCENE_PER_BODY]
+
+
+def test_no_stage_name_is_read_by_pasting_a_body_index():
+    offenders = [f"{path.relative_to(FREEFEM)}: {read}" for path in SOURCES for read in pasted_stage_reads(code(path))]
+    assert offenders == []
+
+
+def test_the_read_scan_sees_a_pasted_stage_name():
+    sample = "fdTractionLoad(Vhi, load#i#qx, pts#qy, F) if (holdCutAny#i) phi#b#At(x, y);"
+    assert pasted_stage_reads(sample) == ["load#i"]
+
+
 def test_every_module_has_an_include_guard():
     """Generated flag-rule lists (flag_rules.idp) are data, included by their params.idp alone."""
     modules = [p for p in MODULES if p.name != "flag_rules.idp"]
