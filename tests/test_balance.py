@@ -115,7 +115,7 @@ def test_ball_held_sideways_by_the_mass_term_alone_is_refused_as_drifting(tmp_pa
                      "--set", "solver.allow_unbalanced=true")
     assert proc.returncode == 3
     line = one_error_line(proc)
-    assert "floating body 1 drifts by 573.1" in line and "1146.3" in line
+    assert "floating body 1 drifts by 573." in line and "1146." in line
     assert "only the mass regularization holds it against a load component along the contact" in line
     fail = failure(tmp_path)
     assert fail["status"] == "implausible" and 570 < fail["drift_body1"] < 576
