@@ -35,30 +35,6 @@ FIGURE_DPI = 130
 PRESSURE_LABEL = "contact pressure (positive in compression)"
 
 
-def inside_extension(cells, values, phi):
-    """values with those at the vertices outside {phi < 0} that share an edge with an inside
-    vertex replaced by the mean of those inside vertices' values (each counted once per cell
-    holding the edge). A stress at a vertex outside a body is its field extended from a cut
-    element, possibly a tiny cut: not the body's. The body files' von_mises_inside is this
-    rule repeated ring after ring outward (freefem/plugins/inside_extension.cpp)."""
-    out = np.array(values, dtype=float)
-    known = phi < 0
-    corners = cells.shape[1]
-    total = np.zeros(len(out))
-    count = np.zeros(len(out))
-    for i in range(corners):
-        for j in range(corners):
-            if i == j:
-                continue
-            p, q = cells[:, i], cells[:, j]
-            sel = ~known[p] & known[q]
-            np.add.at(total, p[sel], out[q[sel]])
-            np.add.at(count, p[sel], 1.0)
-    fill = count > 0
-    out[fill] = total[fill] / count[fill]
-    return out
-
-
 class RunFolderError(DriverError):
     """The folder given to plot is not a readable converged run (bad input: exit 2)."""
 
@@ -372,7 +348,9 @@ def bodies_2d(run, scale):
             tris = cells_of(mesh, path, "triangle", 3)
             xy = np.asarray(mesh.points[:, :2], dtype=float)
             u = point_field(mesh, path, "displacement", f"u{i}", "u", size=2)
-            vm = point_field(mesh, path, "von_mises")
+            # FreeFEM's von_mises_inside: outside the body, the inside's values carried
+            # outward (freefem/plugins/inside_extension.cpp), what the clipped cut cells show
+            vm = point_field(mesh, path, "von_mises_inside", "von_mises")
             phi = point_field(mesh, path, "phi", f"phi{i}") if any(
                 n in mesh.point_data for n in ("phi", f"phi{i}")) else None
             pieces.append(make_piece(f"body {i}", xy, tris, u, vm, phi, scale))
@@ -405,7 +383,6 @@ def make_piece(label, xy, tris, u, vm, phi, scale):
         data = np.column_stack([xy, u, vm])
         segments = np.zeros((0, 2), dtype=np.int64)
     else:
-        vm = inside_extension(tris, vm, phi)
         data, tris, segments = clip_triangles(tris, np.column_stack([xy, u, vm, phi]), 5)
     return Piece(label, data[:, 0:2] + scale * data[:, 2:4], tris, data[:, 4], segments)
 
@@ -797,9 +774,8 @@ def bodies_3d(run):
         path = run.file(filename)
         tets = cells_of(mesh, path, "tetra", 4)
         u = point_field(mesh, path, "displacement", f"u{i}", size=3)
-        vm = point_field(mesh, path, "von_mises")
+        vm = point_field(mesh, path, "von_mises_inside", "von_mises")   # as in 2D: FreeFEM's extension
         phi = point_field(mesh, path, "phi", f"phi{i}")
-        vm = inside_extension(tets, vm, phi)
         meshes.append((f"body {i}", np.asarray(mesh.points[:, :3], dtype=float), tets, u, vm, phi))
     return meshes
 
