@@ -120,6 +120,44 @@ def test_every_module_has_an_include_guard():
     assert len(modules) > 60 and unguarded == []
 
 
+def include_guard(path):
+    """The macro a module's include guard defines (None for an unguarded file)."""
+    match = re.match(r"\s*IFMACRO\(!(\w+Included)\)", code(path))
+    return match.group(1) if match else None
+
+
+def unguarded_includes(source, guards):
+    """The include lines of a module's text that name a guarded module without its
+    guard in front: FreeFEM opens and scans a file at every include, so a module
+    included again re-reads it only to skip it, unless the include is written
+    `IFMACRO(!guard) include "..." ENDIFMACRO`."""
+    found = []
+    for line in source.splitlines():
+        match = re.search(r'include\s+"freefem/([^"]+)"', line)
+        if not match or line.lstrip().startswith("//") or match.group(1) not in guards:
+            continue
+        guard = guards[match.group(1)]
+        if not re.match(r"\s*IFMACRO\(!%s\)\s*include\s+\"[^\"]+\"\s*ENDIFMACRO" % guard, line):
+            found.append(match.group(1))
+    return found
+
+
+def test_every_module_skips_a_module_already_included_without_opening_it():
+    guards = {str(p.relative_to(FREEFEM)): include_guard(p) for p in MODULES if include_guard(p)}
+    bad = {str(p.relative_to(FREEFEM)): unguarded_includes(p.read_text(), guards)
+           for p in MODULES if (FREEFEM / "lib") in p.parents}
+    assert len(guards) > 60 and {k: v for k, v in bad.items() if v} == {}
+
+
+def test_the_include_site_check_sees_a_bare_or_misguarded_include():
+    guards = {"lib/core/args.idp": "coreArgsIncluded"}
+    assert unguarded_includes('include "freefem/lib/core/args.idp"', guards) == ["lib/core/args.idp"]
+    assert unguarded_includes('IFMACRO(!coreResultsIncluded) include "freefem/lib/core/args.idp" ENDIFMACRO',
+                              guards) == ["lib/core/args.idp"]
+    assert unguarded_includes('IFMACRO(!coreArgsIncluded) include "freefem/lib/core/args.idp" ENDIFMACRO',
+                              guards) == []
+
+
 # Which modules a module may include: core/ is shared, except the dimension's
 # elasticity and the 2D adaptation helper; the scene module and the flags are the
 # script's, never a module's.
