@@ -108,9 +108,10 @@ def restore(originals, plugin_backup):
 
 
 def build_plugins(copy):
-    """make the plugins in the copy: only those whose sources are newer are rebuilt."""
-    proc = subprocess.run(["make", "-s", "freefem/plugins/contact_mumps.so", "freefem/plugins/curved_cells.so",
-                           "freefem/plugins/pressure_recovery.so"], cwd=copy, capture_output=True, text=True)
+    """make every plugin of the copy (each source's .so): only those whose sources are
+    newer are rebuilt."""
+    plugins = [f"{PLUGINS}{source.stem}.so" for source in sorted((copy / PLUGINS).glob("*.cpp"))]
+    proc = subprocess.run(["make", "-s", *plugins], cwd=copy, capture_output=True, text=True)
     return proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
 
 
