@@ -1,5 +1,5 @@
-"""Sizes of the FreeFEM code's layout at a revision, the figures issue #42's closing notes
-compare: modules, macro names, names declared by token pasting, stage names read by
+"""Sizes of the FreeFEM code's layout at revisions, to compare a reshaping of the code
+with the tree before it: modules, macro names, names declared by token pasting, stage names read by
 pasting a body index, and the top-level names each two-body script's stages share.
 
     python -m lab.layout_sizes [REV ...]      (default: the working tree)

@@ -1,4 +1,4 @@
-"""lab/layout_sizes.py, the sizes issue #42's closing notes compare: on this tree it agrees
+"""lab/layout_sizes.py, the layout's sizes at revisions: on this tree it agrees
 with the layout tests (no stage name read by pasting a body index, no per-body name
 declared by pasting) and finds the stages' shared names (a scan that found none would
 report a layout it cannot see)."""
