@@ -21,6 +21,8 @@ NOT_A_TYPE = r"(?:macro|else|return|if|for|while|include|load|break|continue|fun
 DECLARATION = re.compile(
     r"(?:^|[;{}]|\bmacro\s+\w+\([^)]*\))[ \t]*(?!" + NOT_A_TYPE + r")[A-Za-z_][\w#]*(?:\[int\])*[ \t]+"
     r"(?=([A-Za-z_\[][^;]*))", re.M)
+# A name made from a body-index macro parameter (cut#i#K, hold#b, ...).
+BODY_PASTED = re.compile(r"[A-Za-z_]\w*#(?:i|b)\b|\b(?:i|b)#[A-Za-z_]")
 
 
 def code(path):
@@ -103,6 +105,8 @@ def test_the_declaration_scan_sees_a_pasted_name():
     assert {"kept", "G", "sig1", "arr"} & set(found) == {"kept", "G", "sig1"}
     assert pasted_declarations(sample) == ["cut#i#K", "cv#i#x", "nCurvedFallback#i", "s#xx", "s#xy",
                                            "p#Ux", "p#Uy", "GB#xx", "W#fx"]
+    assert [n for n in pasted_declarations(sample) if BODY_PASTED.search(n)] == ["cut#i#K", "cv#i#x",
+                                                                               "nCurvedFallback#i"]
 
 
 # The scene module's per-body interface (docs/scene-modules.md), the one family of
