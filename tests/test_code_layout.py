@@ -1,6 +1,6 @@
 """The FreeFEM code's layout rules (docs/design.md "How the FreeFEM code is laid out"),
 read from the sources: the contact law has one home, the 2D and 3D scripts run the
-same stages in the same order, no per-body name is declared by token pasting, and
+same stages in the same order, no name is declared by token pasting, and
 every module has an include guard. No FreeFEM run: these are facts about the text."""
 import re
 from pathlib import Path
@@ -13,10 +13,14 @@ SCRIPTS_TWO_BODY = [FREEFEM / "fd_contact_2d.edp", FREEFEM / "fd_contact_3d.edp"
 
 # The law's positive part [d]_+ divided by gamma, however it is spelled.
 POSITIVE_PART = re.compile(r"max\(\s*[^(),]+,\s*0\.?\s*\)\s*/\s*\(?\s*gam")
-# A declaration: a type, then its declarators up to the semicolon.
+# A declaration: at the start of a statement (or of a macro's body), a type, then its
+# declarators up to the semicolon. The type is any name, since a macro declares with
+# the space or type it is given (`Dh s(4)`, `fdDc#Vhi[int] GB(6)`); words that start
+# other statements are not types.
+NOT_A_TYPE = r"(?:macro|else|return|if|for|while|include|load|break|continue|func|IFMACRO|ENDIFMACRO|cout)\b"
 DECLARATION = re.compile(
-    r"(?:^|[;{])\s*(?:real\[int\]\[int\]|real\[int\]|int\[int\]|real|int|bool|matrix|string|mesh3?|fespace|"
-    r"varf|Ph|Lo|Qo|Lh\w*|Vh\w*|Sh\w*|Dh\w*)\s+([^;]*)", re.M)
+    r"(?:^|[;{}]|\bmacro\s+\w+\([^)]*\))[ \t]*(?!" + NOT_A_TYPE + r")[A-Za-z_][\w#]*(?:\[int\])*[ \t]+"
+    r"(?=([A-Za-z_\[][^;]*))", re.M)
 # A name made from a body-index macro parameter (cut#i#K, hold#b, ...).
 BODY_PASTED = re.compile(r"[A-Za-z_]\w*#(?:i|b)\b|\b(?:i|b)#[A-Za-z_]")
 
@@ -74,21 +78,35 @@ def test_the_2d_and_3d_scripts_run_the_same_stages_in_the_same_order():
     assert [n for n in two if n not in ONLY_2D] == [n for n in three if n not in ONLY_3D]
 
 
-def test_no_per_body_name_is_declared_by_token_pasting():
-    offenders = []
-    for path in SOURCES:
-        for match in DECLARATION.finditer(code(path)):
-            offenders += [f"{path.relative_to(FREEFEM)}: {name}" for name in declared_names(match.group(1))
-                          if BODY_PASTED.search(name)]
-    assert offenders == []
+def pasted_declarations(source):
+    """The names the declarations of a source make by token pasting (a `#` in the name)."""
+    return [name for match in DECLARATION.finditer(source) for name in declared_names(match.group(1))
+            if "#" in name]
 
 
-def test_the_declaration_scan_sees_a_pasted_body_name():
-    """The scan above would catch a regression: a pasted declaration in its own grammar."""
-    sample = "real[int] cut#i#K = seg#i#K, cv#i#x(0);\nint nCurvedFallback#i = 0;\nreal[int] kept(3);\n"
+def test_no_name_is_declared_by_token_pasting():
+    """A record is an array with named components or fields written out at the call
+    (docs/design.md), so grep finds every name where it is declared."""
+    offenders = [f"{path.relative_to(FREEFEM)}: {name}" for path in SOURCES
+                 for name in pasted_declarations(code(path))]
+    assert len(SOURCES) > 70 and offenders == []
+
+
+def test_the_declaration_scan_sees_a_pasted_name():
+    """The scan above would catch a regression: pasted declarations in the forms the
+    modules used, among declarations and pasted reads it must let pass."""
+    sample = ("real[int] cut#i#K = seg#i#K, cv#i#x(0);\nint nCurvedFallback#i = 0;\n"
+              "macro stressOf(Dh, s) Dh s#xx = sigXX(u), s#xy(2); //\n"
+              "macro holdRows(p)\nmatrix p#Ux, p#Uy;\n//\n"
+              "fdDc#Vhi GB#xx = sig3XX(lam);\nfespace W#fx(Thi, [P2, P2]);\n"
+              "real[int] kept(3); matrix[int] G(4); Dh1[int] sig1(4);\n"
+              "if (p#N > 0) kept#w.resize(3); else arr = p#y;\nt#c[q] -= s*n#c[q]; G[gradXY] = R;\n")
     found = [name for m in DECLARATION.finditer(sample) for name in declared_names(m.group(1))]
-    assert found == ["cut#i#K", "cv#i#x", "nCurvedFallback#i", "kept"]
-    assert [n for n in found if BODY_PASTED.search(n)] == ["cut#i#K", "cv#i#x", "nCurvedFallback#i"]
+    assert {"kept", "G", "sig1", "arr"} & set(found) == {"kept", "G", "sig1"}
+    assert pasted_declarations(sample) == ["cut#i#K", "cv#i#x", "nCurvedFallback#i", "s#xx", "s#xy",
+                                           "p#Ux", "p#Uy", "GB#xx", "W#fx"]
+    assert [n for n in pasted_declarations(sample) if BODY_PASTED.search(n)] == ["cut#i#K", "cv#i#x",
+                                                                               "nCurvedFallback#i"]
 
 
 # The scene module's per-body interface (docs/scene-modules.md), the one family of
