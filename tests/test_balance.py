@@ -47,6 +47,20 @@ def one_error_line(proc):
     return lines[0]
 
 
+
+@pytest.mark.freefem
+def test_the_balance_measures_the_load_the_contact_does_not_carry(tmp_path):
+    """mass_eps = 1e-3 (kept by allow_unbalanced): the mass term carries part of the disk's
+    weight, which acts along y, the last axis; the contact's force balance must report
+    that part (the mass share) and not only the x components."""
+    proc = driver(tmp_path, "--set", "rigid.mass_eps=1e-3", "--set", "solver.allow_unbalanced=true")
+    assert proc.returncode == 0, proc.stderr
+    r = results(tmp_path)
+    share = r["balance"]["mass_share"]
+    assert share > 1e-5
+    # measured: 1.6456113e-4 against a mass share of 1.6456227e-4 (6.9e-6 apart)
+    assert r["contact"]["force_balance_error"] == pytest.approx(share, rel=1e-4)
+
 @pytest.mark.freefem
 def test_shipped_scene_is_carried_by_the_contact(tmp_path):
     proc = driver(tmp_path)
